@@ -1,0 +1,62 @@
+//! `dynapix`: dynamic RGB-D visual SLAM (DynaPix, GCPR 2024) on the CPU.
+
+mod cmd;
+
+use clap::{Parser, Subcommand};
+
+/// Dynamic RGB-D visual SLAM with per-pixel motion probabilities (DynaPix) on the CPU.
+#[derive(Parser)]
+#[command(name = "dynapix", version, about, long_about = None)]
+struct Cli {
+    /// More log output (-v info, -vv debug).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Evaluate trajectories: ATE, RPE, tracking rate, multi-run tables and plots.
+    Eval(cmd::eval::Args),
+    /// Dense optical flow between two images (DIS).
+    Flow(cmd::flow::Args),
+    /// Generate synthetic dynamic RGB-D sequences, or augment a real one with movers.
+    Synth(cmd::synth::Args),
+    /// Per-pixel motion probability maps for a sequence.
+    Motion(cmd::motion::Args),
+    /// Run SLAM on a sequence.
+    Slam(cmd::slam::Args),
+    /// Train or import a bag-of-words vocabulary.
+    Vocab(cmd::vocab::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::Flow(a) => cmd::flow::run(a),
+        Command::Synth(a) => cmd::synth::run(a),
+        Command::Motion(a) => cmd::motion::run(a),
+        Command::Slam(a) => cmd::slam::run(a),
+        Command::Vocab(a) => cmd::vocab::run(a),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! dynapix-eval (in progress).

@@ -1,0 +1,1 @@
+//! dynapix-io (in progress).

@@ -1,0 +1,1 @@
+//! dynapix-motion (in progress).

@@ -1,0 +1,1 @@
+//! dynapix-optim (in progress).

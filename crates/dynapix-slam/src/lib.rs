@@ -1,0 +1,5 @@
+//! ORB-SLAM2-class RGB-D SLAM with DynaPix per-keypoint weights: ORB features, matching,
+//! bag-of-words vocabulary, frames, the map, tracking and local mapping.
+//! No file access: inputs are images and parameters, outputs are poses and the map.
+
+pub mod features;

@@ -1,0 +1,1 @@
+//! dynapix-synth (in progress).
