@@ -1,1 +1,7 @@
-//! dynapix-io (in progress).
+//! File formats and dataset layouts for dynapix: TUM RGB-D lists and association, the
+//! DynaPix and GRADE folder layouts, ORB-SLAM2 settings, trajectories and probability maps.
+//! Every parser reports errors with the file and line; every writer is atomic.
+
+pub mod error;
+
+pub use error::{IoError, Result};

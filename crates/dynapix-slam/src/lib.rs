@@ -3,3 +3,11 @@
 //! No file access: inputs are images and parameters, outputs are poses and the map.
 
 pub mod features;
+pub mod frame;
+pub mod local_mapping;
+pub mod map;
+pub mod matcher;
+pub mod orb;
+pub mod system;
+pub mod tracking;
+pub mod vocab;
