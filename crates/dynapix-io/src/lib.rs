@@ -6,7 +6,9 @@ pub mod atomic;
 pub mod error;
 mod text;
 pub mod trajectory;
+pub mod tum;
 
 pub use atomic::write_atomic;
 pub use error::{IoError, Result};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
+pub use tum::{Association, ListEntry, associate};
