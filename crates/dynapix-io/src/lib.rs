@@ -4,11 +4,13 @@
 
 pub mod atomic;
 pub mod error;
+pub mod images;
 mod text;
 pub mod trajectory;
 pub mod tum;
 
 pub use atomic::write_atomic;
 pub use error::{IoError, Result};
+pub use images::{DepthImage, Gray16Image, ProbMap};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};
