@@ -1,6 +1,20 @@
 //! File formats and dataset layouts for dynapix: TUM RGB-D lists and association, the
 //! DynaPix and GRADE folder layouts, ORB-SLAM2 settings, trajectories and probability maps.
 //! Every parser reports errors with the file and line; every writer is atomic.
+//!
+//! Map of the crate:
+//! - [`trajectory`]: [`Trajectory`] (TUM and KITTI read/write, SLERP interpolation) and the
+//!   per-frame status file ([`FrameStatus`]).
+//! - [`tum`]: `rgb.txt`/`depth.txt` lists, [`associate`] (exactly like `associate.py`),
+//!   4-column association files.
+//! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
+//!   lossless PFM).
+//! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade`, the camera of a
+//!   sequence folder.
+//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`].
+//! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
+
+#![warn(missing_docs)]
 
 pub mod atomic;
 pub mod error;
