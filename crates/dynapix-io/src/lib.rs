@@ -11,7 +11,8 @@
 //!   lossless PFM).
 //! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade`, the camera of a
 //!   sequence folder.
-//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`].
+//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`],
+//!   and [`SequenceWriter`] for the DynaPix layout.
 //! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
 
 #![warn(missing_docs)]
@@ -28,7 +29,7 @@ pub mod tum;
 pub use atomic::write_atomic;
 pub use error::{IoError, Result};
 pub use images::{DepthImage, Gray16Image, ProbMap};
-pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions};
+pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions, SequenceWriter};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};
