@@ -362,14 +362,22 @@ pub fn status_to_string(entries: &[StampedStatus]) -> String {
     s
 }
 
-/// Writes a status file atomically (see [`status_to_string`]).
+/// Writes a status file atomically (see [`status_to_string`]); timestamps must be finite and
+/// strictly increasing (as the reader requires), else nothing is written.
 pub fn write_status(path: impl AsRef<Path>, entries: &[StampedStatus]) -> Result<()> {
     let path = path.as_ref();
-    if let Some(bad) = entries.iter().find(|e| !e.t.is_finite()) {
-        return Err(IoError::invalid(
-            path,
-            format!("non-finite timestamp {}", bad.t),
-        ));
+    let mut prev = f64::NEG_INFINITY;
+    for (i, e) in entries.iter().enumerate() {
+        if !e.t.is_finite() || e.t <= prev {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "entry {i}: timestamp {} is not finite or not after {prev}",
+                    e.t
+                ),
+            ));
+        }
+        prev = e.t;
     }
     write_atomic(path, status_to_string(entries).as_bytes())
 }
@@ -567,6 +575,14 @@ mod tests {
         ];
         write_status(&p, &entries).unwrap();
         assert_eq!(read_status(&p).unwrap(), entries);
+        let mut twice = entries.clone();
+        twice[2].t = twice[1].t;
+        assert!(write_status(&p, &twice).is_err());
+        assert_eq!(
+            read_status(&p).unwrap(),
+            entries,
+            "failed write left the file alone"
+        );
         let bad = |text: &str| {
             parse_status(text, Path::new("st.txt"))
                 .unwrap_err()

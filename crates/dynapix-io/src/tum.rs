@@ -101,8 +101,49 @@ pub fn list_to_string(entries: &[ListEntry], kind: &str) -> String {
     s
 }
 
-/// Writes an image list atomically (see [`list_to_string`]).
+/// Errors unless `written` can stand as one column of a list: non-empty, no separator
+/// (space, tab, comma, line break) and not starting with `#`.
+fn check_column_path(path: &Path, what: &str, written: &str) -> Result<()> {
+    if written.is_empty()
+        || written.starts_with('#')
+        || written.contains([' ', '\t', ',', '\n', '\r'])
+    {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{what} `{written}` cannot be written as one column (empty, separator or leading #)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Errors unless `t` is finite and, when `strict`, above `prev` (else not below it).
+fn check_time(path: &Path, i: usize, t: f64, prev: Option<f64>, strict: bool) -> Result<()> {
+    let ordered = match prev {
+        None => true,
+        Some(p) if strict => t > p,
+        Some(p) => t >= p,
+    };
+    if !t.is_finite() || !ordered {
+        return Err(IoError::invalid(
+            path,
+            format!("entry {i}: timestamp {t} is not finite or out of order"),
+        ));
+    }
+    Ok(())
+}
+
+/// Writes an image list atomically (see [`list_to_string`]). Refuses (writing nothing)
+/// entries that would not read back: non-finite or decreasing timestamps, paths with
+/// separators.
 pub fn write_list(path: impl AsRef<Path>, entries: &[ListEntry], kind: &str) -> Result<()> {
+    let path = path.as_ref();
+    for (i, e) in entries.iter().enumerate() {
+        let prev = i.checked_sub(1).map(|j| entries[j].t);
+        check_time(path, i, e.t, prev, false)?;
+        check_column_path(path, "image path", &e.path)?;
+    }
     write_atomic(path, list_to_string(entries, kind).as_bytes())
 }
 
@@ -216,8 +257,18 @@ pub fn associations_to_string(assoc: &[Association]) -> String {
     s
 }
 
-/// Writes an association file atomically (see [`associations_to_string`]).
+/// Writes an association file atomically (see [`associations_to_string`]). Refuses
+/// (writing nothing) lines that would not read back: non-finite timestamps, rgb timestamps
+/// not strictly increasing, paths with separators.
 pub fn write_associations(path: impl AsRef<Path>, assoc: &[Association]) -> Result<()> {
+    let path = path.as_ref();
+    for (i, a) in assoc.iter().enumerate() {
+        let prev = i.checked_sub(1).map(|j| assoc[j].t_rgb);
+        check_time(path, i, a.t_rgb, prev, true)?;
+        check_time(path, i, a.t_depth, None, false)?;
+        check_column_path(path, "rgb path", &a.rgb)?;
+        check_column_path(path, "depth path", &a.depth)?;
+    }
     write_atomic(path, associations_to_string(assoc).as_bytes())
 }
 
@@ -350,6 +401,18 @@ mod tests {
         let p = dir.path().join("association.txt");
         write_associations(&p, &assoc).unwrap();
         assert_eq!(read_associations(&p).unwrap(), assoc);
+        // Entries that could not be read back are refused and nothing is written.
+        let q = dir.path().join("bad.txt");
+        let mut spaced = assoc.clone();
+        spaced[0].rgb = "rgb/a b.png".into();
+        let e = write_associations(&q, &spaced).unwrap_err().to_string();
+        assert!(e.contains("bad.txt") && e.contains("rgb/a b.png"), "{e}");
+        let reversed: Vec<Association> = assoc.iter().rev().cloned().collect();
+        assert!(write_associations(&q, &reversed).is_err());
+        let mut nan = rgb.clone();
+        nan[1].t = f64::NAN;
+        assert!(write_list(&q, &nan, "x").is_err());
+        assert!(!q.exists());
     }
 
     #[test]
