@@ -2,6 +2,11 @@
 //! DynaPix and GRADE folder layouts, ORB-SLAM2 settings, trajectories and probability maps.
 //! Every parser reports errors with the file and line; every writer is atomic.
 
+pub mod atomic;
 pub mod error;
+mod text;
+pub mod trajectory;
 
+pub use atomic::write_atomic;
 pub use error::{IoError, Result};
+pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
