@@ -6,6 +6,14 @@
 //! 3-vector residual `(u, v, uR) − (fx·X/Z + cx, fy·Y/Z + cy, fx·X/Z + cx − bf/Z)`, one
 //! without depth a 2-vector residual (mono edge). Poses are `T_cw` (world → camera).
 
+// Index loops over CSR ranges (edges of a point) read clearer than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+pub mod ba;
+mod edge;
+pub mod pose;
 pub mod problem;
 
+pub use ba::bundle_adjust;
+pub use pose::optimize_pose;
 pub use problem::*;
