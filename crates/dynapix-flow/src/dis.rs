@@ -251,6 +251,7 @@ struct Template {
 }
 
 /// Hessian of the patch at (px, py), or `None` for a textureless patch.
+#[inline(always)]
 fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
     let (ps, w) = (ctx.ps, ctx.a.w);
     let n = (ps * ps) as f32;
@@ -287,7 +288,7 @@ fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
 }
 
 /// Clamps a displacement so the patch stays inside the padded image B.
-#[inline]
+#[inline(always)]
 fn clamp_disp(ctx: &LevelCtx, px: usize, py: usize, u: f32, v: f32) -> (f32, f32) {
     let b = SEARCH_BORDER as f32;
     let max_x = (ctx.bp.w - ctx.ps - 1) as f32 - b - px as f32;
@@ -312,6 +313,10 @@ fn clamp_disp(ctx: &LevelCtx, px: usize, py: usize, u: f32, v: f32) -> (f32, f32
 /// per-lane accumulators vectorise.
 #[inline(always)]
 fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
+    #[inline(always)]
+    fn arr<const N: usize>(data: &[f32], o: usize) -> Option<&[f32; N]> {
+        data.get(o..o + N)?.try_into().ok()
+    }
     let (aw, bw) = (ctx.a.w, ctx.bp.w);
     // x, y >= 0 (clamped displacement in the padded image): truncation is floor.
     let (x0, y0) = (x as usize, y as usize);
@@ -324,16 +329,27 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
     let mut sdd = [0.0f32; N];
     let mut sdx = [0.0f32; N];
     let mut sdy = [0.0f32; N];
-    let mut b0: &[f32] = &ctx.bp.data[y0 * bw + x0..y0 * bw + x0 + N + 1];
+    let b = &ctx.bp.data;
     for j in 0..N {
-        let ob = (y0 + j + 1) * bw + x0;
-        let b1: &[f32] = &ctx.bp.data[ob..ob + N + 1];
+        let ob = (y0 + j) * bw + x0;
         let oa = (py + j) * aw + px;
-        let a: &[f32; N] = ctx.a.data[oa..oa + N].try_into().unwrap_or(&[0.0; N]);
-        let gx: &[f32; N] = ctx.ax.data[oa..oa + N].try_into().unwrap_or(&[0.0; N]);
-        let gy: &[f32; N] = ctx.ay.data[oa..oa + N].try_into().unwrap_or(&[0.0; N]);
-        let (r0l, r0r) = (&b0[..N], &b0[1..N + 1]);
-        let (r1l, r1r) = (&b1[..N], &b1[1..N + 1]);
+        let rows = (
+            arr::<N>(b, ob),
+            arr::<N>(b, ob + 1),
+            arr::<N>(b, ob + bw),
+            arr::<N>(b, ob + bw + 1),
+        );
+        let tmpl = (
+            arr::<N>(&ctx.a.data, oa),
+            arr::<N>(&ctx.ax.data, oa),
+            arr::<N>(&ctx.ay.data, oa),
+        );
+        let ((Some(r0l), Some(r0r), Some(r1l), Some(r1r)), (Some(a), Some(gx), Some(gy))) =
+            (rows, tmpl)
+        else {
+            // Unreachable for clamped displacements; an empty patch costs nothing.
+            break;
+        };
         for i in 0..N {
             let d = w00 * r0l[i] + w01 * r0r[i] + w10 * r1l[i] + w11 * r1r[i] - a[i];
             sd[i] += d;
@@ -341,7 +357,6 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
             sdx[i] += d * gx[i];
             sdy[i] += d * gy[i];
         }
-        b0 = b1;
     }
     [
         sd.iter().sum(),
@@ -352,6 +367,7 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
 }
 
 /// Scalar version of [`patch_sums`] for patch sizes without a specialised kernel.
+#[inline(always)]
 fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
     let (aw, bw, ps) = (ctx.a.w, ctx.bp.w, ctx.ps);
     let (x0, y0) = (x as usize, y as usize);
@@ -376,7 +392,7 @@ fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32;
 
 /// Patch cost at displacement (u, v) and the Gauss-Newton right-hand side:
 /// `(SSD, Σ ∇A·d)`, both mean-normalised when enabled.
-#[inline]
+#[inline(always)]
 fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) -> (f32, f32, f32) {
     let x = px as f32 + u + SEARCH_BORDER as f32;
     let y = py as f32 + v + SEARCH_BORDER as f32;
@@ -402,6 +418,7 @@ fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) 
 /// the cost stops decreasing and returns the evaluated displacement with the lowest cost.
 /// A result further than the patch size from the start is discarded (lost match).
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn descend(
     ctx: &LevelCtx,
     t: &Template,
@@ -443,10 +460,52 @@ fn descend(
     }
 }
 
+/// One sweep over a band of patch rows (see [`sweep_band_impl`]), using AVX2 code when the
+/// CPU has it. Both variants do the same operations in the same order (no fused multiply-add
+/// is enabled), so the results are identical.
+#[allow(clippy::too_many_arguments)]
+fn sweep_band(
+    ctx: &LevelCtx,
+    xs: &[usize],
+    ys: &[usize],
+    row0: usize,
+    su: &mut [f32],
+    sv: &mut [f32],
+    forward: bool,
+    iters: usize,
+    propagate: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked at run time just above).
+        unsafe { sweep_band_avx2(ctx, xs, ys, row0, su, sv, forward, iters, propagate) };
+        return;
+    }
+    sweep_band_impl(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+fn sweep_band_avx2(
+    ctx: &LevelCtx,
+    xs: &[usize],
+    ys: &[usize],
+    row0: usize,
+    su: &mut [f32],
+    sv: &mut [f32],
+    forward: bool,
+    iters: usize,
+    propagate: bool,
+) {
+    sweep_band_impl(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+}
+
 /// One sweep over a band of patch rows. `forward` goes left-to-right/top-down and proposes
 /// the left and upper neighbours; backward the right and lower ones.
 #[allow(clippy::too_many_arguments)]
-fn sweep_band(
+#[inline(always)]
+fn sweep_band_impl(
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],

@@ -46,7 +46,7 @@ impl Plane {
     }
 
     /// Bilinear sample at real coordinates (pixel centres at integers), replicated border.
-    #[inline]
+    #[inline(always)]
     pub fn bilinear(&self, x: f32, y: f32) -> f32 {
         let xm = (self.w - 1) as f32;
         let ym = (self.h - 1) as f32;
@@ -168,18 +168,41 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
     let sx = u.w as f32 / dw as f32;
     let sy = u.h as f32 / dh as f32;
     let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+    // Source columns and weights are the same for every row: compute them once.
+    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+        (0..n_dst)
+            .map(|d| {
+                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                let i0 = p as usize;
+                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+            })
+            .collect()
+    };
+    let cols = taps(dw, u.w, sx);
+    let rows = taps(dh, u.h, sy);
     let mut ou = Plane::zeros(dw, dh);
     let mut ov = Plane::zeros(dw, dh);
+    let sw = u.w;
     ou.data
         .par_chunks_mut(dw)
         .zip(ov.data.par_chunks_mut(dw))
-        .enumerate()
-        .for_each(|(y, (ru, rv))| {
-            let ys = (y as f32 + 0.5) * sy - 0.5;
-            for x in 0..dw {
-                let xs = (x as f32 + 0.5) * sx - 0.5;
-                ru[x] = u.bilinear(xs, ys) * scale_u;
-                rv[x] = v.bilinear(xs, ys) * scale_v;
+        .zip(rows.par_iter())
+        .for_each(|((ru, rv), &(y0, y1, fy))| {
+            let (u0, u1) = (
+                &u.data[y0 * sw..(y0 + 1) * sw],
+                &u.data[y1 * sw..(y1 + 1) * sw],
+            );
+            let (v0, v1) = (
+                &v.data[y0 * sw..(y0 + 1) * sw],
+                &v.data[y1 * sw..(y1 + 1) * sw],
+            );
+            for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
+                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                *pu = (tu + fy * (bu - tu)) * scale_u;
+                *pv = (tv + fy * (bv - tv)) * scale_v;
             }
         });
     (ou, ov)

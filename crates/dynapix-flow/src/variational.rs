@@ -211,7 +211,6 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
         merge_rb(&lay, &du, &mut du_full);
         merge_rb(&lay, &dv, &mut dv_full);
         smoothness_weights(u, v, &du_full, &dv_full, p, &mut cu, &mut cv, &mut ws);
-        let [s0, s1] = &mut sys;
         let env = BuildEnv {
             lay: &lay,
             dc: &dc,
@@ -222,7 +221,7 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
             ws: &ws,
             p,
         };
-        rayon::join(|| env.fill(0, s0), || env.fill(1, s1));
+        env.fill_all(&mut sys);
         for _ in 0..p.sor_iterations {
             for colour in 0..2 {
                 sor_half_sweep(&lay, colour, &sys[colour], p.omega, &mut du, &mut dv);
@@ -310,77 +309,135 @@ struct BuildEnv<'a> {
     p: &'a VariationalParams,
 }
 
+/// Mutable views of one padded row of every coefficient array of an [`RbSystem`].
+struct RowMut<'a> {
+    wl: &'a mut [f32],
+    wr: &'a mut [f32],
+    wu: &'a mut [f32],
+    wd: &'a mut [f32],
+    ru: &'a mut [f32],
+    rv: &'a mut [f32],
+    a12: &'a mut [f32],
+    inv11: &'a mut [f32],
+    inv22: &'a mut [f32],
+}
+
+/// Splits the interior rows of a system into per-row views (for row-parallel filling).
+fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
+    let r = st..(h + 1) * st;
+    s.wl[r.clone()]
+        .chunks_mut(st)
+        .zip(s.wr[r.clone()].chunks_mut(st))
+        .zip(s.wu[r.clone()].chunks_mut(st))
+        .zip(s.wd[r.clone()].chunks_mut(st))
+        .zip(s.ru[r.clone()].chunks_mut(st))
+        .zip(s.rv[r.clone()].chunks_mut(st))
+        .zip(s.a12[r.clone()].chunks_mut(st))
+        .zip(s.inv11[r.clone()].chunks_mut(st))
+        .zip(s.inv22[r].chunks_mut(st))
+        .map(
+            |((((((((wl, wr), wu), wd), ru), rv), a12), inv11), inv22)| RowMut {
+                wl,
+                wr,
+                wu,
+                wd,
+                ru,
+                rv,
+                a12,
+                inv11,
+                inv22,
+            },
+        )
+        .collect()
+}
+
 impl BuildEnv<'_> {
-    fn fill(&self, colour: usize, s: &mut RbSystem) {
-        let (w, h, st) = (self.lay.w, self.lay.h, self.lay.stride);
+    /// Fills both colours' systems, rows in parallel.
+    fn fill_all(&self, sys: &mut [RbSystem; 2]) {
+        let (st, h) = (self.lay.stride, self.lay.h);
+        let [s0, s1] = sys;
+        let mut jobs: Vec<(usize, usize, RowMut<'_>)> = Vec::with_capacity(2 * h);
+        jobs.extend(
+            rows_mut(s0, st, h)
+                .into_iter()
+                .enumerate()
+                .map(|(y, r)| (0, y, r)),
+        );
+        jobs.extend(
+            rows_mut(s1, st, h)
+                .into_iter()
+                .enumerate()
+                .map(|(y, r)| (1, y, r)),
+        );
+        jobs.par_iter_mut()
+            .for_each(|(colour, y, row)| self.fill_row(*colour, *y, row));
+    }
+
+    fn fill_row(&self, colour: usize, y: usize, s: &mut RowMut<'_>) {
+        let (w, h) = (self.lay.w, self.lay.h);
         let z2 = self.p.zeta * self.p.zeta;
         let eps2 = self.p.epsilon * self.p.epsilon;
         let (delta2, gamma2) = (0.5 * self.p.delta, 0.5 * self.p.gamma);
         let d = self.dc;
-        let (u, v, ws) = (&self.u.data, &self.v.data, &self.ws.data);
-        for y in 0..h {
-            let (x0, len) = self.lay.row(colour, y);
-            for k in 0..len {
-                let x = x0 + 2 * k;
-                let i = y * w + x;
-                let j = (y + 1) * st + k + 1;
-                let (ddu, ddv) = (self.du.data[i], self.dv.data[i]);
-                // Brightness constancy (normalised), robust weight from the current increment.
-                let r = d.bz[i] + d.bx[i] * ddu + d.by[i] * ddv;
-                let wi = delta2 / (r * r + eps2).sqrt();
-                // Gradient constancy.
-                let rx = d.gxz[i] + d.gxx[i] * ddu + d.gxy[i] * ddv;
-                let ry = d.gyz[i] + d.gyx[i] * ddu + d.gyy[i] * ddv;
-                let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
-                let a11 =
-                    wi * d.bx[i] * d.bx[i] + wg * (d.gxx[i] * d.gxx[i] + d.gyx[i] * d.gyx[i]) + z2;
-                let a12 = wi * d.bx[i] * d.by[i] + wg * (d.gxx[i] * d.gxy[i] + d.gyx[i] * d.gyy[i]);
-                let a22 =
-                    wi * d.by[i] * d.by[i] + wg * (d.gxy[i] * d.gxy[i] + d.gyy[i] * d.gyy[i]) + z2;
-                let b1 = -wi * d.bz[i] * d.bx[i] - wg * (d.gxx[i] * d.gxz[i] + d.gyx[i] * d.gyz[i]);
-                let b2 = -wi * d.bz[i] * d.by[i] - wg * (d.gxy[i] * d.gxz[i] + d.gyy[i] * d.gyz[i]);
-                // Smoothness: edge weights (zero across the image border) and the base flow's
-                // Laplacian-like term on the right-hand side.
-                let wl = if x > 0 { ws[i - 1] } else { 0.0 };
-                let wr = if x + 1 < w { ws[i] } else { 0.0 };
-                let wu = if y > 0 { ws[i - w] } else { 0.0 };
-                let wd = if y + 1 < h { ws[i] } else { 0.0 };
-                let nb = |o: isize| -> (f32, f32) {
-                    let q = (i as isize + o) as usize;
-                    (u[q] - u[i], v[q] - v[i])
-                };
-                let (mut su, mut sv) = (0.0f32, 0.0f32);
-                if x > 0 {
-                    let (a, b) = nb(-1);
-                    su += wl * a;
-                    sv += wl * b;
-                }
-                if x + 1 < w {
-                    let (a, b) = nb(1);
-                    su += wr * a;
-                    sv += wr * b;
-                }
-                if y > 0 {
-                    let (a, b) = nb(-(w as isize));
-                    su += wu * a;
-                    sv += wu * b;
-                }
-                if y + 1 < h {
-                    let (a, b) = nb(w as isize);
-                    su += wd * a;
-                    sv += wd * b;
-                }
-                let sum = wl + wr + wu + wd;
-                s.wl[j] = wl;
-                s.wr[j] = wr;
-                s.wu[j] = wu;
-                s.wd[j] = wd;
-                s.ru[j] = b1 + su;
-                s.rv[j] = b2 + sv;
-                s.a12[j] = a12;
-                s.inv11[j] = 1.0 / (a11 + sum);
-                s.inv22[j] = 1.0 / (a22 + sum);
-            }
+        let o = y * w;
+        fn sub(a: &[f32], o: usize, w: usize) -> &[f32] {
+            &a[o..o + w]
+        }
+        let row = |a| sub(a, o, w);
+        let (bx, by, bz) = (row(&d.bx), row(&d.by), row(&d.bz));
+        let (gxx, gxy, gxz) = (row(&d.gxx), row(&d.gxy), row(&d.gxz));
+        let (gyx, gyy, gyz) = (row(&d.gyx), row(&d.gyy), row(&d.gyz));
+        let (du, dv) = (row(&self.du.data), row(&self.dv.data));
+        let (u, v, ws) = (row(&self.u.data), row(&self.v.data), row(&self.ws.data));
+        // Neighbour rows (the row itself at the border, where the weight is zero anyway).
+        let up = if y > 0 { o - w } else { o };
+        let dn = if y + 1 < h { o + w } else { o };
+        let (u_up, v_up) = (&self.u.data[up..up + w], &self.v.data[up..up + w]);
+        let (u_dn, v_dn) = (&self.u.data[dn..dn + w], &self.v.data[dn..dn + w]);
+        let ws_up = &self.ws.data[up..up + w];
+        let (x0, len) = self.lay.row(colour, y);
+        for k in 0..len {
+            let x = x0 + 2 * k;
+            let j = k + 1;
+            let (ddu, ddv) = (du[x], dv[x]);
+            // Brightness constancy (normalised), robust weight from the current increment.
+            let r = bz[x] + bx[x] * ddu + by[x] * ddv;
+            let wi = delta2 / (r * r + eps2).sqrt();
+            // Gradient constancy.
+            let rx = gxz[x] + gxx[x] * ddu + gxy[x] * ddv;
+            let ry = gyz[x] + gyx[x] * ddu + gyy[x] * ddv;
+            let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
+            let a11 = wi * bx[x] * bx[x] + wg * (gxx[x] * gxx[x] + gyx[x] * gyx[x]) + z2;
+            let a12 = wi * bx[x] * by[x] + wg * (gxx[x] * gxy[x] + gyx[x] * gyy[x]);
+            let a22 = wi * by[x] * by[x] + wg * (gxy[x] * gxy[x] + gyy[x] * gyy[x]) + z2;
+            let b1 = -wi * bz[x] * bx[x] - wg * (gxx[x] * gxz[x] + gyx[x] * gyz[x]);
+            let b2 = -wi * bz[x] * by[x] - wg * (gxy[x] * gxz[x] + gyy[x] * gyz[x]);
+            // Smoothness: edge weights (zero across the image border) and the base flow's
+            // differences to the neighbours on the right-hand side.
+            let xl = x.saturating_sub(1);
+            let xr = if x + 1 < w { x + 1 } else { x };
+            let wl = if x > 0 { ws[xl] } else { 0.0 };
+            let wr = if x + 1 < w { ws[x] } else { 0.0 };
+            let wu = if y > 0 { ws_up[x] } else { 0.0 };
+            let wd = if y + 1 < h { ws[x] } else { 0.0 };
+            let su = wl * (u[xl] - u[x])
+                + wr * (u[xr] - u[x])
+                + wu * (u_up[x] - u[x])
+                + wd * (u_dn[x] - u[x]);
+            let sv = wl * (v[xl] - v[x])
+                + wr * (v[xr] - v[x])
+                + wu * (v_up[x] - v[x])
+                + wd * (v_dn[x] - v[x]);
+            let sum = wl + wr + wu + wd;
+            s.wl[j] = wl;
+            s.wr[j] = wr;
+            s.wu[j] = wu;
+            s.wd[j] = wd;
+            s.ru[j] = b1 + su;
+            s.rv[j] = b2 + sv;
+            s.a12[j] = a12;
+            s.inv11[j] = 1.0 / (a11 + sum);
+            s.inv22[j] = 1.0 / (a22 + sum);
         }
     }
 }
