@@ -179,7 +179,8 @@ impl CameraMotion {
                 let up = back.cross(&side);
                 let dir =
                     back * (az.cos() * el.cos()) + side * (az.sin() * el.cos()) + up * el.sin();
-                let eye = rig.eye + dir * radius + wobble_eye;
+                // Sphere centre ahead of the base eye so the camera stays clear of the wall behind.
+                let eye = rig.eye - back * 0.4 + dir * radius + wobble_eye;
                 (eye, look_at(&eye, &(rig.target + wobble_tgt)))
             }
             MotionKind::Loop => {
