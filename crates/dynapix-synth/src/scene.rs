@@ -46,6 +46,25 @@ pub struct SceneParams {
     pub ambient: f32,
 }
 
+impl SceneParams {
+    /// Texture resolutions scaled to the image width (defaults are for 640 px): smaller
+    /// images need no finer texture detail than a pixel, and baking is proportionally cheaper.
+    pub fn for_width(width: u32) -> Self {
+        let d = Self::default();
+        let s = width as f64 / 640.0;
+        let scaled = |n: usize| {
+            ((n as f64 * s).round() as usize)
+                .clamp(16, 2048)
+                .next_power_of_two()
+        };
+        Self {
+            big_texture_size: scaled(d.big_texture_size),
+            texture_size: scaled(d.texture_size),
+            ..d
+        }
+    }
+}
+
 impl Default for SceneParams {
     fn default() -> Self {
         Self {

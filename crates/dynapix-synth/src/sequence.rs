@@ -665,3 +665,141 @@ impl Sequence {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Small, fast parameters: 160×120 (TUM fr3 intrinsics scaled by 1/4), small textures.
+    fn small(preset: Preset, seed: u64, sensor: SensorParams) -> SynthParams {
+        let c = PinholeCamera::tum_fr3();
+        SynthParams {
+            preset,
+            frames: 40,
+            seed,
+            camera: PinholeCamera::new(160, 120, c.fx / 4.0, c.fy / 4.0, c.cx / 4.0, c.cy / 4.0),
+            sensor,
+            scene: SceneParams::for_width(160),
+            ..SynthParams::default()
+        }
+    }
+
+    #[test]
+    fn rgb_equals_background_outside_movers() {
+        for (preset, sensor) in [
+            (Preset::WalkingXyz, SensorParams::default()),
+            (Preset::Flying, SensorParams::full()),
+            (Preset::Occlusion, SensorParams::default()),
+        ] {
+            let seq = Sequence::new(small(preset, 3, sensor)).expect("sequence");
+            let mut mover_px = 0;
+            for i in [0, 20, 39] {
+                let (f, _) = seq.frame(i, None);
+                for (j, m) in f.mask.as_raw().iter().enumerate() {
+                    if *m == 0 {
+                        assert_eq!(
+                            f.rgb.as_raw()[3 * j..3 * j + 3],
+                            f.background.as_raw()[3 * j..3 * j + 3],
+                            "{preset:?} frame {i} px {j}"
+                        );
+                        assert_eq!(f.instance.as_raw()[j], 0);
+                    } else {
+                        mover_px += 1;
+                        assert!(f.instance.as_raw()[j] > 0);
+                    }
+                }
+            }
+            assert!(
+                mover_px > 100,
+                "{preset:?}: movers barely visible ({mover_px} px)"
+            );
+        }
+    }
+
+    #[test]
+    fn flow_matches_reprojection_through_depth_and_poses() {
+        let seq =
+            Sequence::new(small(Preset::WalkingRpy, 5, SensorParams::clean())).expect("sequence");
+        let k = seq.intrinsics();
+        let step = 3;
+        let i = 10;
+        let (f, flow) = seq.frame(i, Some(step));
+        let flow = flow.expect("flow");
+        let (w, h) = (k.width, k.height);
+        let t1 = seq.pose(i);
+        let t2 = seq.pose(i + step);
+        let rel = t2.inverse() * t1;
+        let (mut checked, mut mover_diff) = (0, 0);
+        for y in 0..h {
+            for x in 0..w {
+                let j = y * w + x;
+                let d = f.depth.as_raw()[j];
+                if d == 0 {
+                    continue;
+                }
+                let z = d as f64 / DEPTH_FACTOR as f64;
+                let p = Point3::new(
+                    (x as f64 - k.cx as f64) / k.fx as f64 * z,
+                    (y as f64 - k.cy as f64) / k.fy as f64 * z,
+                    z,
+                );
+                let q = rel * p;
+                let u = k.fx as f64 * q.x / q.z + k.cx as f64 - x as f64;
+                let v = k.fy as f64 * q.y / q.z + k.cy as f64 - y as f64;
+                let [fu, fv] = flow.data[j];
+                let err = (fu as f64 - u).hypot(fv as f64 - v);
+                if f.mask.as_raw()[j] == 0 {
+                    // Depth is quantised to 0.2 mm, so agreement is far below a pixel.
+                    assert!(
+                        err < 0.02,
+                        "static pixel ({x},{y}): flow {fu},{fv} vs {u},{v}"
+                    );
+                    checked += 1;
+                } else if f.mask.as_raw()[j] == 255 && err > 0.1 {
+                    mover_diff += 1;
+                }
+            }
+        }
+        assert!(checked > w * h / 2, "only {checked} static pixels");
+        // Moving pixels do not follow the camera-only reprojection.
+        assert!(mover_diff > 20, "{mover_diff}");
+    }
+
+    #[test]
+    fn same_seed_same_frames_different_seed_differs() {
+        let a = Sequence::new(small(Preset::Flying, 9, SensorParams::full())).expect("a");
+        let b = Sequence::new(small(Preset::Flying, 9, SensorParams::full())).expect("b");
+        let c = Sequence::new(small(Preset::Flying, 10, SensorParams::full())).expect("c");
+        let (fa, qa) = a.frame(7, Some(1));
+        let (fb, qb) = b.frame(7, Some(1));
+        let (fc, _) = c.frame(7, None);
+        assert_eq!(fa.rgb, fb.rgb);
+        assert_eq!(fa.depth, fb.depth);
+        assert_eq!(fa.mask, fb.mask);
+        assert_eq!(qa, qb);
+        assert_ne!(fa.rgb, fc.rgb);
+    }
+
+    #[test]
+    fn mask_marks_still_parts_128_and_moving_parts_255() {
+        // Seated people move only an arm: over a few seconds both labels must occur on them.
+        let seq =
+            Sequence::new(small(Preset::Sitting, 2, SensorParams::clean())).expect("sequence");
+        let (mut still, mut moving) = (0, 0);
+        for i in (0..150).step_by(10) {
+            let (f, _) = seq.frame(i, None);
+            still += f.mask.as_raw().iter().filter(|&&m| m == 128).count();
+            moving += f.mask.as_raw().iter().filter(|&&m| m == 255).count();
+        }
+        assert!(
+            still > 1000 && moving > 20,
+            "still {still}, moving {moving}"
+        );
+        assert!(still > moving, "most of a seated person is still");
+        // Static preset: no movers at all.
+        let seq = Sequence::new(small(Preset::Static, 2, SensorParams::clean())).expect("sequence");
+        let (f, _) = seq.frame(5, None);
+        assert!(f.mask.as_raw().iter().all(|&m| m == 0));
+        assert_eq!(f.rgb, f.background);
+    }
+}

@@ -2,7 +2,7 @@
 //!
 //! ORB (FAST threshold 20 on grey levels) needs stable, high-contrast corners that do not flicker
 //! from frame to frame. Texture detail finer than a pixel aliases and makes corners appear and
-//! vanish, so every texture is baked once (3×3 supersampled per texel) into a power-of-two mip
+//! vanish, so every texture is baked once (2×2 supersampled per texel) into a power-of-two mip
 //! pyramid and sampled with a level of detail chosen from the pixel footprint on the surface.
 //! Generators are deterministic functions of a `ChaCha8Rng` seeded by the scene.
 
@@ -28,7 +28,8 @@ pub struct Texture {
 
 impl Texture {
     /// Bakes `f(u, v)` (tile coordinates in `[0, 1)`) into a `size × size` texture
-    /// (size rounded up to a power of two, at least 4), 3×3 supersampled per texel.
+    /// (size rounded up to a power of two, at least 4), 2×2 supersampled per texel (the mip
+    /// chain does the rest of the prefiltering).
     pub fn bake<F>(size: usize, f: F) -> Self
     where
         F: Fn(f32, f32) -> Rgb + Sync,
@@ -39,10 +40,10 @@ impl Texture {
         data.par_chunks_mut(size).enumerate().for_each(|(y, row)| {
             for (x, texel) in row.iter_mut().enumerate() {
                 let mut acc = [0.0f32; 3];
-                for sy in 0..3 {
-                    for sx in 0..3 {
-                        let u = (x as f32 + (sx as f32 + 0.5) / 3.0) * inv;
-                        let v = (y as f32 + (sy as f32 + 0.5) / 3.0) * inv;
+                for sy in 0..2 {
+                    for sx in 0..2 {
+                        let u = (x as f32 + (sx as f32 + 0.5) / 2.0) * inv;
+                        let v = (y as f32 + (sy as f32 + 0.5) / 2.0) * inv;
                         let c = f(u, v);
                         for k in 0..3 {
                             acc[k] += c[k];
@@ -50,7 +51,7 @@ impl Texture {
                     }
                 }
                 for k in 0..3 {
-                    texel[k] = to_u8(acc[k] / 9.0);
+                    texel[k] = to_u8(acc[k] / 4.0);
                 }
             }
         });

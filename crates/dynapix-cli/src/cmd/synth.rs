@@ -117,6 +117,7 @@ fn params(args: &Args) -> anyhow::Result<SynthParams> {
         preset,
         frames: args.frames,
         seed: args.seed,
+        scene: dynapix_synth::SceneParams::for_width(cam.width),
         camera: cam,
         sensor,
         ..SynthParams::default()
