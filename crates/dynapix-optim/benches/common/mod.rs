@@ -1,0 +1,127 @@
+//! Synthetic problems shared by the criterion benchmark and the CPU-time example.
+
+use dynapix_geometry::{Se3, se3};
+use dynapix_optim::{BaEdge, BaProblem, Observation, PoseOnlyProblem, StereoCamera};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn cam() -> StereoCamera {
+    StereoCamera {
+        fx: 535.4,
+        fy: 539.2,
+        cx: 320.1,
+        cy: 247.6,
+        bf: 40.0,
+    }
+}
+
+fn gauss(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = rng.random_range(1e-12..1.0);
+    let u2: f64 = rng.random_range(0.0..1.0);
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+fn observe(rng: &mut ChaCha8Rng, t: &Se3, x: &Vector3<f64>, k: usize) -> Observation {
+    let c = cam();
+    let xc = (t * Point3::from(*x)).coords;
+    let u = c.fx * xc.x / xc.z + c.cx;
+    let v = c.fy * xc.y / xc.z + c.cy;
+    let gross = if k % 20 == 7 { 25.0 } else { 0.0 };
+    Observation {
+        uv: [u + gauss(rng) + gross, v + gauss(rng)],
+        u_right: (k % 4 != 0).then(|| u - c.bf / xc.z + gauss(rng)),
+        inv_sigma2: 1.0,
+        weight: 1.0 - 0.05 * (k % 3) as f64,
+    }
+}
+
+pub fn pose_problem() -> PoseOnlyProblem {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let c = cam();
+    let t = Isometry3::from_parts(
+        Translation3::new(0.2, -0.1, 0.3),
+        UnitQuaternion::from_euler_angles(0.05, -0.1, 0.08),
+    );
+    let mut points = Vec::new();
+    let mut observations = Vec::new();
+    for k in 0..300 {
+        let u = rng.random_range(20.0..620.0);
+        let v = rng.random_range(20.0..460.0);
+        let z = rng.random_range(1.0..5.0);
+        let xc = Vector3::new((u - c.cx) / c.fx * z, (v - c.cy) / c.fy * z, z);
+        let xw = (t.inverse() * Point3::from(xc)).coords;
+        observations.push(observe(&mut rng, &t, &xw, k));
+        points.push(xw);
+    }
+    PoseOnlyProblem {
+        camera: c,
+        pose: se3::exp(&Vector6::new(0.01, -0.02, 0.01, 0.03, 0.02, -0.03)) * t,
+        points,
+        observations,
+    }
+}
+
+pub fn ba_problem() -> BaProblem {
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let n_poses = 10;
+    let truth: Vec<Se3> = (0..n_poses)
+        .map(|i| {
+            let f = i as f64;
+            Isometry3::from_parts(
+                Translation3::new(0.05 * f, 0.01 * f, 0.02 * f),
+                UnitQuaternion::from_euler_angles(0.005 * f, -0.01 * f, 0.003 * f),
+            )
+            .inverse()
+        })
+        .collect();
+    let mut points = Vec::new();
+    let mut edges = Vec::new();
+    for j in 0..2000 {
+        let x = Vector3::new(
+            rng.random_range(-1.5..2.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(2.5..6.0),
+        );
+        // Every point is seen by 5 consecutive keyframes: 10000 edges.
+        let first = j % (n_poses - 4);
+        for (i, t) in truth.iter().enumerate().skip(first).take(5) {
+            let k = edges.len();
+            edges.push(BaEdge {
+                pose: i,
+                point: j,
+                obs: observe(&mut rng, t, &x, k),
+            });
+        }
+        points.push(x + Vector3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng)) * 0.02);
+    }
+    let poses = truth
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            if i < 2 {
+                *t
+            } else {
+                let d = Vector6::new(
+                    0.003 * gauss(&mut rng),
+                    0.003 * gauss(&mut rng),
+                    0.003 * gauss(&mut rng),
+                    0.01 * gauss(&mut rng),
+                    0.01 * gauss(&mut rng),
+                    0.01 * gauss(&mut rng),
+                );
+                se3::exp(&d) * *t
+            }
+        })
+        .collect();
+    let mut pose_fixed = vec![false; n_poses];
+    pose_fixed[0] = true;
+    pose_fixed[1] = true;
+    BaProblem {
+        camera: cam(),
+        poses,
+        pose_fixed,
+        points,
+        edges,
+    }
+}
