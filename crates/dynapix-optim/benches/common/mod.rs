@@ -30,7 +30,7 @@ fn observe(rng: &mut ChaCha8Rng, t: &Se3, x: &Vector3<f64>, k: usize) -> Observa
     let gross = if k % 20 == 7 { 25.0 } else { 0.0 };
     Observation {
         uv: [u + gauss(rng) + gross, v + gauss(rng)],
-        u_right: (k % 4 != 0).then(|| u - c.bf / xc.z + gauss(rng)),
+        u_right: (!k.is_multiple_of(4)).then(|| u - c.bf / xc.z + gauss(rng)),
         inv_sigma2: 1.0,
         weight: 1.0 - 0.05 * (k % 3) as f64,
     }
