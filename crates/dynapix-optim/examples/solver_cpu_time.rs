@@ -6,7 +6,11 @@
 #[path = "../benches/common/mod.rs"]
 mod common;
 
-use dynapix_optim::{BaParams, PoseOnlyParams, bundle_adjust, optimize_pose};
+use dynapix_geometry::PinholeCamera;
+use dynapix_geometry::pnp::{PnpRansac, PnpRansacParams};
+use dynapix_optim::{
+    BaParams, PoseGraphParams, PoseOnlyParams, bundle_adjust, optimize_pose, optimize_pose_graph,
+};
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -46,5 +50,19 @@ fn main() {
     let bp = BaParams::default();
     measure("local_ba_10_poses_2000_points_10000_edges", 60, || {
         black_box(bundle_adjust(black_box(&ba), &bp));
+    });
+    let (poses, fixed, edges) = common::pose_graph_problem();
+    let pg = PoseGraphParams::default();
+    measure("pose_graph_200_poses_399_edges", 20, || {
+        black_box(optimize_pose_graph(black_box(&poses), &fixed, &edges, &pg));
+    });
+    let (pw, px, s2) = common::pnp_problem();
+    let cam = PinholeCamera::new(640, 480, 535.4, 539.2, 320.1, 247.6);
+    let rp = PnpRansacParams::default();
+    measure("epnp_ransac_150_points_30pct_outliers", 2000, || {
+        let r = PnpRansac::new(black_box(&pw), black_box(&px), &s2, &cam, &rp)
+            .ok()
+            .and_then(|mut r| r.solve());
+        black_box(r);
     });
 }

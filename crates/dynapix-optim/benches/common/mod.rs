@@ -125,3 +125,69 @@ pub fn ba_problem() -> BaProblem {
         edges,
     }
 }
+
+/// A drifted loop of 200 keyframes with odometry edges, a loop edge and covisibility edges to
+/// the keyframe two steps back (about 400 edges), as essential-graph optimisation sees it.
+pub fn pose_graph_problem() -> (Vec<Se3>, Vec<bool>, Vec<dynapix_optim::PoseGraphEdge>) {
+    let n = 200;
+    let truth: Vec<Se3> = (0..n)
+        .map(|k| {
+            let a = k as f64 / n as f64 * std::f64::consts::TAU;
+            Isometry3::from_parts(
+                Translation3::new(3.0 * a.cos(), 0.1 * (3.0 * a).sin(), 3.0 * a.sin()),
+                UnitQuaternion::from_euler_angles(0.0, -a, 0.05 * a.sin()),
+            )
+            .inverse()
+        })
+        .collect();
+    let mut edges = Vec::new();
+    for k in 0..n {
+        for step in [1, 2] {
+            let j = (k + step) % n;
+            if step == 2 && j < k {
+                continue;
+            }
+            edges.push(dynapix_optim::PoseGraphEdge {
+                i: k,
+                j,
+                t_ij: truth[k] * truth[j].inverse(),
+                information: nalgebra::Matrix6::identity(),
+            });
+        }
+    }
+    let bias = se3::exp(&Vector6::new(0.001, -0.001, 0.0005, 0.004, 0.0, -0.002));
+    let mut drifted = vec![truth[0]];
+    for k in 1..n {
+        let rel = truth[k] * truth[k - 1].inverse();
+        let prev = drifted[k - 1];
+        drifted.push(bias * rel * prev);
+    }
+    let mut fixed = vec![false; n];
+    fixed[0] = true;
+    (drifted, fixed, edges)
+}
+
+/// 150 correspondences, 30 % of them random pixels, for EPnP RANSAC.
+pub fn pnp_problem() -> (Vec<Vector3<f64>>, Vec<nalgebra::Vector2<f64>>, Vec<f64>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let c = cam();
+    let t = Isometry3::from_parts(
+        Translation3::new(0.3, -0.2, 0.5),
+        UnitQuaternion::from_euler_angles(0.2, -0.3, 0.1),
+    );
+    let mut pw = Vec::new();
+    let mut px = Vec::new();
+    for k in 0..150 {
+        let u: f64 = rng.random_range(10.0..630.0);
+        let v: f64 = rng.random_range(10.0..470.0);
+        let z: f64 = rng.random_range(0.8..6.0);
+        let xc = Vector3::new((u - c.cx) / c.fx * z, (v - c.cy) / c.fy * z, z);
+        pw.push((t.inverse() * Point3::from(xc)).coords);
+        px.push(if k % 10 < 3 {
+            nalgebra::Vector2::new(rng.random_range(0.0..640.0), rng.random_range(0.0..480.0))
+        } else {
+            nalgebra::Vector2::new(u + 0.5 * gauss(&mut rng), v + 0.5 * gauss(&mut rng))
+        });
+    }
+    (pw, px, vec![1.0; 150])
+}
