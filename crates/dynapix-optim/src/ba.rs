@@ -21,6 +21,21 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Point3, Vector3, V
 use rayon::prelude::*;
 use std::ops::Range;
 
+/// A pose as rotation matrix and translation (cheaper to apply than a quaternion).
+type Rt = (Matrix3<f64>, Vector3<f64>);
+
+fn to_rt(poses: &[Se3]) -> Vec<Rt> {
+    poses
+        .iter()
+        .map(|t| {
+            (
+                *t.rotation.to_rotation_matrix().matrix(),
+                t.translation.vector,
+            )
+        })
+        .collect()
+}
+
 /// Upper bound on the number of point chunks (parallel work items).
 const MAX_CHUNKS: usize = 16;
 /// Minimum points per chunk, so small problems are not split needlessly.
@@ -69,7 +84,8 @@ struct Chunk {
     a: Vec<Matrix6<f64>>,
     gc: Vec<Vector6<f64>>,
     // Reduced system contributions.
-    schur: DMatrix<f64>,
+    /// Upper blocks `(a, b)`, `a ≤ b`, of `−W V⁻¹ Wᵀ` at `a·n_vars + b`.
+    schur: Vec<Matrix6<f64>>,
     rhs: DVector<f64>,
     cost: f64,
     new_cost: f64,
@@ -94,7 +110,7 @@ impl Chunk {
             dp: vec![Vector3::zeros(); np],
             a: vec![Matrix6::zeros(); ctx.n_vars],
             gc: vec![Vector6::zeros(); ctx.n_vars],
-            schur: DMatrix::zeros(n6, n6),
+            schur: vec![Matrix6::zeros(); ctx.n_vars * ctx.n_vars],
             rhs: DVector::zeros(n6),
             cost: 0.0,
             new_cost: 0.0,
@@ -106,7 +122,7 @@ impl Chunk {
     fn linearize(
         &mut self,
         ctx: &Ctx,
-        poses: &[Se3],
+        poses: &[Rt],
         points: &[Vector3<f64>],
         active: &[bool],
         robust: bool,
@@ -124,8 +140,8 @@ impl Chunk {
                     continue;
                 }
                 let ed = &ctx.edges[e];
-                let pose = &poses[ed.pose];
-                let xc = (pose * Point3::from(points[p])).coords;
+                let (rot, tr) = &poses[ed.pose];
+                let xc = rot * points[p] + tr;
                 let Some(r) = edge::residual(&ctx.cam, &xc, &ed.obs) else {
                     continue;
                 };
@@ -138,15 +154,14 @@ impl Chunk {
                 self.cost += wt.cost;
                 let s = wt.irls * ed.obs.inv_sigma2;
                 let jpi = edge::projection_jacobian(&ctx.cam, &xc, ed.stereo);
-                let jp = -jpi * pose.rotation.to_rotation_matrix().matrix();
+                let jp = -jpi * rot;
                 v += s * jp.transpose() * jp;
                 gp += s * jp.transpose() * r;
                 if let Some(k) = ed.var {
                     let jc = edge::pose_jacobian(&jpi, &xc);
-                    let jct = jc.transpose();
-                    self.a[k] += s * jct * jc;
-                    self.gc[k] += s * jct * r;
-                    self.w[le] = s * jct * jp;
+                    self.a[k] += edge::ata_3x6(&jc, s);
+                    self.gc[k] += s * jc.transpose() * r;
+                    self.w[le] = edge::atb_3x6_3x3(&jc, &jp, s);
                 }
                 self.s[le] = s;
             }
@@ -157,14 +172,15 @@ impl Chunk {
 
     /// Damped point inverses and this chunk's part of `−W V⁻¹ Wᵀ` and `W V⁻¹ g_p`.
     fn reduce(&mut self, ctx: &Ctx, lambda: f64) {
-        self.schur.fill(0.0);
+        self.schur.iter_mut().for_each(|m| *m = Matrix6::zeros());
+        let nv = ctx.n_vars;
         self.rhs.fill(0.0);
         for (lp, p) in self.points.clone().enumerate() {
             let damped = self.v[lp] + Matrix3::identity() * lambda;
             // A point whose block cannot be inverted is left where it is for this step.
             let vinv = damped
-                .cholesky()
-                .map(|c| c.inverse())
+                .try_inverse()
+                .filter(|m| m.iter().all(|x| x.is_finite()))
                 .unwrap_or_else(Matrix3::zeros);
             self.vinv[lp] = vinv;
             let range = ctx.point_start[p]..ctx.point_start[p + 1];
@@ -177,15 +193,24 @@ impl Chunk {
                 let y = self.w[le] * vinv;
                 let mut rhs = self.rhs.fixed_rows_mut::<6>(6 * va);
                 rhs += y * self.gp[lp];
-                for f in range.clone() {
+                // Pairs (e, f) with f ≥ e; the block of (f, e) is the transpose.
+                for f in e..range.end {
                     let lf = f - self.edge_offset;
                     if self.s[lf] == 0.0 {
                         continue;
                     }
                     let Some(vb) = ctx.edges[f].var else { continue };
-                    let block = y * self.w[lf].transpose();
-                    let mut dst = self.schur.fixed_view_mut::<6, 6>(6 * va, 6 * vb);
-                    dst -= block;
+                    let block = edge::mul_abt_6x3(&y, &self.w[lf]);
+                    // (f, e) contributes the transpose; keep only the upper blocks.
+                    if f == e {
+                        self.schur[va * nv + va] -= block;
+                    } else if va < vb {
+                        self.schur[va * nv + vb] -= block;
+                    } else if va > vb {
+                        self.schur[vb * nv + va] -= block.transpose();
+                    } else {
+                        self.schur[va * nv + va] -= block + block.transpose();
+                    }
                 }
             }
         }
@@ -215,7 +240,7 @@ impl Chunk {
     fn candidate_cost(
         &mut self,
         ctx: &Ctx,
-        poses: &[Se3],
+        poses: &[Rt],
         points: &[Vector3<f64>],
         active: &[bool],
         robust: bool,
@@ -228,7 +253,8 @@ impl Chunk {
                     continue;
                 }
                 let ed = &ctx.edges[e];
-                let xc = (poses[ed.pose] * Point3::from(x)).coords;
+                let (rot, tr) = &poses[ed.pose];
+                let xc = rot * x + tr;
                 if let Some(r) = edge::residual(&ctx.cam, &xc, &ed.obs) {
                     cost += edge::weigh(
                         edge::chi2(&r, ed.obs.inv_sigma2),
@@ -405,7 +431,8 @@ impl Lm<'_, '_> {
         let mut rhs = DVector::<f64>::zeros(n6);
         for it in 0..iterations {
             {
-                let (p, pts) = (&*poses, &*points);
+                let rt = to_rt(poses);
+                let (p, pts) = (&rt, &*points);
                 self.chunks
                     .par_iter_mut()
                     .for_each(|c| c.linearize(ctx, p, pts, active, robust));
@@ -445,21 +472,27 @@ impl Lm<'_, '_> {
                 self.chunks
                     .par_iter_mut()
                     .for_each(|c| c.reduce(ctx, lambda));
-                s.fill(0.0);
                 rhs.copy_from(&gc_tot);
                 rhs.neg_mut();
                 for c in self.chunks.iter() {
-                    s += &c.schur;
                     rhs += &c.rhs;
                 }
-                for (k, a) in a_tot.iter().enumerate() {
-                    let mut dst = s.fixed_view_mut::<6, 6>(6 * k, 6 * k);
-                    dst += a + Matrix6::identity() * lambda;
+                for a in 0..nv {
+                    for b in a..nv {
+                        let mut block = Matrix6::zeros();
+                        for c in self.chunks.iter() {
+                            block += c.schur[a * nv + b];
+                        }
+                        if a == b {
+                            block += a_tot[a] + Matrix6::identity() * lambda;
+                            // Exact symmetry for the factorisation.
+                            block = (block + block.transpose()) * 0.5;
+                        }
+                        s.fixed_view_mut::<6, 6>(6 * a, 6 * b).copy_from(&block);
+                        s.fixed_view_mut::<6, 6>(6 * b, 6 * a)
+                            .copy_from(&block.transpose());
+                    }
                 }
-                // Exact symmetry for the factorisation (the blocks are summed in both orders).
-                let st = s.transpose();
-                s += st;
-                s *= 0.5;
                 let dc = if n6 == 0 {
                     Some(DVector::zeros(0))
                 } else {
@@ -485,7 +518,8 @@ impl Lm<'_, '_> {
                     cand[pi] = se3::exp(&d) * poses[pi];
                 }
                 {
-                    let (cp, pts) = (&cand, &*points);
+                    let rt = to_rt(&cand);
+                    let (cp, pts) = (&rt, &*points);
                     self.chunks
                         .par_iter_mut()
                         .for_each(|c| c.candidate_cost(ctx, cp, pts, active, robust));
