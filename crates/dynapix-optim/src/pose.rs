@@ -5,7 +5,8 @@
 //! round restarts from the initial guess (as ORB-SLAM2 does, which re-sets the vertex estimate
 //! from `Frame::mTcw` each round) and uses only the edges classified as inliers by the previous
 //! round; the Huber kernel (δ = √χ²-threshold of the edge type) is on for the first
-//! `robust_rounds` rounds. After each round every edge is classified again at the new pose.
+//! `robust_rounds` rounds. After each round every edge is classified again at the new pose;
+//! problems with fewer than `min_edges_for_rounds` edges stop after the first round.
 
 use crate::edge::{self, Weighted};
 use crate::problem::{PoseOnlyParams, PoseOnlyProblem, PoseOnlyResult, StereoCamera, WeightMode};
@@ -87,6 +88,9 @@ pub fn optimize_pose(problem: &PoseOnlyProblem, params: &PoseOnlyParams) -> Pose
         let rt = to_rt(&pose);
         for (k, e) in edges.iter().enumerate() {
             active[k] = classify(problem, params.weight_mode, e, &rt);
+        }
+        if edges.len() < params.min_edges_for_rounds {
+            break;
         }
     }
     let mut num_inliers = 0;
@@ -386,6 +390,27 @@ mod tests {
         let res = optimize_pose(&p, &params);
         assert_ne!(res.pose, p.pose, "3 stereo edges must be optimised");
         assert_eq!(res.num_inliers, 3);
+    }
+
+    #[test]
+    fn small_problems_stop_after_one_round() {
+        let mut p = scene(9, 8, 1.0, 0);
+        p.observations[3].uv[0] += 6.0;
+        let one_round = PoseOnlyParams {
+            rounds: 1,
+            min_edges_for_rounds: 0,
+            ..PoseOnlyParams::default()
+        };
+        let all_rounds = PoseOnlyParams {
+            min_edges_for_rounds: 0,
+            ..PoseOnlyParams::default()
+        };
+        let a = optimize_pose(&p, &PoseOnlyParams::default());
+        let b = optimize_pose(&p, &one_round);
+        let c = optimize_pose(&p, &all_rounds);
+        assert_eq!(a.pose, b.pose);
+        assert_eq!(a.inlier, b.inlier);
+        assert_ne!(a.pose, c.pose, "four rounds must differ from one here");
     }
 
     #[test]
