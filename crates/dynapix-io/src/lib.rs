@@ -1,6 +1,21 @@
 //! File formats and dataset layouts for dynapix: TUM RGB-D lists and association, the
 //! DynaPix and GRADE folder layouts, ORB-SLAM2 settings, trajectories and probability maps.
 //! Every parser reports errors with the file and line; every writer is atomic.
+//!
+//! Map of the crate:
+//! - [`trajectory`]: [`Trajectory`] (TUM and KITTI read/write, SLERP interpolation) and the
+//!   per-frame status file ([`FrameStatus`]).
+//! - [`tum`]: `rgb.txt`/`depth.txt` lists, [`associate`] (exactly like `associate.py`),
+//!   4-column association files.
+//! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
+//!   lossless PFM).
+//! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade`, the camera of a
+//!   sequence folder.
+//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`],
+//!   and [`SequenceWriter`] for the DynaPix layout.
+//! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
+
+#![warn(missing_docs)]
 
 pub mod atomic;
 pub mod error;
@@ -14,7 +29,7 @@ pub mod tum;
 pub use atomic::write_atomic;
 pub use error::{IoError, Result};
 pub use images::{DepthImage, Gray16Image, ProbMap};
-pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions};
+pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions, SequenceWriter};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};

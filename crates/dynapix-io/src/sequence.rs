@@ -23,7 +23,7 @@ use crate::error::{IoError, Result};
 use crate::images::{self, DepthImage, ProbMap};
 use crate::settings::{SEQUENCE_SETTINGS_FILE, Settings};
 use crate::trajectory::{DEFAULT_MAX_GAP, Trajectory};
-use crate::tum::{self, DEFAULT_MAX_DIFF};
+use crate::tum::{self, Association, DEFAULT_MAX_DIFF};
 
 /// Association file names looked for, in this order (TUM tools, DynaSLAM, DynaPix, GRADE).
 pub const ASSOCIATION_FILES: [&str; 4] = [
@@ -64,6 +64,9 @@ pub struct SequenceOptions {
     pub max_diff: f64,
     /// Maximal gap between two ground-truth poses to interpolate between them (0.05 s).
     pub gt_max_gap: f64,
+    /// Folder of the probability maps (named like the rgb images); `None` = `<dir>/prob`.
+    /// Lets a read-only dataset use maps computed elsewhere.
+    pub prob_dir: Option<PathBuf>,
 }
 
 impl Default for SequenceOptions {
@@ -72,6 +75,7 @@ impl Default for SequenceOptions {
             depth_factor: None,
             max_diff: DEFAULT_MAX_DIFF,
             gt_max_gap: DEFAULT_MAX_GAP,
+            prob_dir: None,
         }
     }
 }
@@ -139,12 +143,21 @@ pub struct Sequence {
     pub depth_factor: f64,
     /// Maximal ground-truth gap for interpolation (s).
     pub gt_max_gap: f64,
+    /// Folder of the probability maps (`<dir>/prob` unless [`SequenceOptions::prob_dir`]).
+    pub prob_dir: PathBuf,
 }
 
 /// `dir/<sub>/<name>` if that file exists.
 fn existing(dir: &Path, sub: &str, name: Option<&std::ffi::OsStr>) -> Option<PathBuf> {
     let p = dir.join(sub).join(name?);
     p.is_file().then_some(p)
+}
+
+/// The probability-map paths (reference PNG, lossless PFM) of an rgb image in `prob_dir`.
+fn prob_paths(prob_dir: &Path, rgb: &Path) -> (PathBuf, PathBuf) {
+    let png = prob_dir.join(rgb.file_name().unwrap_or(rgb.as_os_str()));
+    let pfm = png.with_extension("pfm");
+    (png, pfm)
 }
 
 /// True when the file stem is a decimal frame number (GRADE naming).
@@ -174,11 +187,12 @@ impl Sequence {
         }
         let numbered = pairs.iter().all(|a| is_numbered(Path::new(&a.rgb)));
         let has = |sub: &str| dir.join(sub).is_dir();
-        let (has_bg, has_dbg, has_prob, has_mask) =
-            (has("background"), has("depth_bg"), has("prob"), has("mask"));
+        let (has_bg, has_dbg, has_mask) = (has("background"), has("depth_bg"), has("mask"));
+        let prob_dir = opts.prob_dir.clone().unwrap_or_else(|| dir.join("prob"));
+        let has_prob = prob_dir.is_dir();
         let layout = if numbered {
             Layout::Grade
-        } else if has_bg || has_dbg || has_prob || has_mask {
+        } else if has_bg || has_dbg || has("prob") || has_mask {
             Layout::DynaPix
         } else {
             Layout::Tum
@@ -190,8 +204,7 @@ impl Sequence {
                 let depth = tum::resolve_path(&dir, &a.depth);
                 let rgb_name = rgb.file_name();
                 let prob = if has_prob {
-                    let pfm = images::prob_pfm_path(&dir, &rgb);
-                    let png = images::prob_png_path(&dir, &rgb);
+                    let (png, pfm) = prob_paths(&prob_dir, &rgb);
                     [pfm, png].into_iter().find(|p| p.is_file())
                 } else {
                     None
@@ -247,6 +260,7 @@ impl Sequence {
             settings,
             depth_factor,
             gt_max_gap: opts.gt_max_gap,
+            prob_dir,
         })
     }
 
@@ -329,14 +343,35 @@ impl Sequence {
         self.groundtruth.as_ref()?.interpolate(t, self.gt_max_gap)
     }
 
-    /// Where the reference probability PNG of frame `i` goes: `prob/<rgb file name>`.
+    /// Where the reference probability PNG of frame `i` goes: `<prob_dir>/<rgb file name>`.
     pub fn prob_png_path(&self, i: usize) -> Option<PathBuf> {
-        Some(images::prob_png_path(&self.dir, &self.frames.get(i)?.rgb))
+        Some(prob_paths(&self.prob_dir, &self.frames.get(i)?.rgb).0)
     }
 
-    /// Where the lossless probability map of frame `i` goes: `prob/<rgb stem>.pfm`.
+    /// Where the lossless probability map of frame `i` goes: `<prob_dir>/<rgb stem>.pfm`.
     pub fn prob_pfm_path(&self, i: usize) -> Option<PathBuf> {
-        Some(images::prob_pfm_path(&self.dir, &self.frames.get(i)?.rgb))
+        Some(prob_paths(&self.prob_dir, &self.frames.get(i)?.rgb).1)
+    }
+
+    /// Writes the probability map of frame `i` in both formats (reference PNG and lossless
+    /// PFM), creating the probability folder if needed. The frame list of `self` is not
+    /// updated: open the sequence again to load the new maps.
+    pub fn write_prob(&self, i: usize, prob: &ProbMap) -> Result<()> {
+        let (png, pfm) = match self.frames.get(i) {
+            Some(f) => prob_paths(&self.prob_dir, &f.rgb),
+            None => {
+                return Err(IoError::invalid(
+                    &self.dir,
+                    format!(
+                        "frame {i} out of range (sequence has {})",
+                        self.frames.len()
+                    ),
+                ));
+            }
+        };
+        std::fs::create_dir_all(&self.prob_dir).map_err(|e| IoError::io(&self.prob_dir, e))?;
+        images::write_prob_png(png, prob)?;
+        images::write_prob_pfm(pfm, prob)
     }
 
     /// Loads frame `i`: images (depth in metres), optional maps and the interpolated
@@ -406,11 +441,114 @@ impl Sequence {
     }
 }
 
+/// Writes a sequence in the DynaPix layout, readable by [`Sequence::open`]: `camera.yaml`,
+/// `rgb/`, `depth/` and, per frame, whichever of `background/`, `depth_bg/`, `mask/`, `prob/`
+/// the frame carries; files are named `<t with 6 decimals>.png` like TUM (probability maps
+/// in both the reference PNG and the lossless PFM), then `association.txt` and
+/// `groundtruth.txt` by [`SequenceWriter::finish`]. Every file is written atomically.
+#[derive(Clone, Debug)]
+pub struct SequenceWriter {
+    dir: PathBuf,
+    depth_factor: f64,
+}
+
+impl SequenceWriter {
+    /// Creates `dir` with `rgb/` and `depth/`, and writes `camera.yaml` from `settings`
+    /// (whose `DepthMapFactor` scales the depth images).
+    pub fn create(dir: impl AsRef<Path>, settings: &Settings) -> Result<Self> {
+        let dir = dir.as_ref().to_path_buf();
+        for sub in ["rgb", "depth"] {
+            let d = dir.join(sub);
+            std::fs::create_dir_all(&d).map_err(|e| IoError::io(&d, e))?;
+        }
+        settings.write(dir.join(SEQUENCE_SETTINGS_FILE))?;
+        Ok(Self {
+            dir,
+            depth_factor: settings.depth_map_factor,
+        })
+    }
+
+    /// The sequence folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// File name of the frame at time `t`: `<t with 6 decimals>.png`, like TUM.
+    pub fn frame_file_name(t: f64) -> String {
+        format!("{t:.6}.png")
+    }
+
+    fn sub_path(&self, sub: &str, name: &str) -> Result<PathBuf> {
+        let d = self.dir.join(sub);
+        std::fs::create_dir_all(&d).map_err(|e| IoError::io(&d, e))?;
+        Ok(d.join(name))
+    }
+
+    /// Writes the images of one frame (`gt_pose` and `index` are not stored here) and
+    /// returns its association line for [`SequenceWriter::finish`]. Takes `&self`, so frames
+    /// can be written in parallel. Every map must have the rgb image's size.
+    pub fn write_frame(&self, frame: &FrameData) -> Result<Association> {
+        let name = Self::frame_file_name(frame.t);
+        let rgb_path = self.dir.join("rgb").join(&name);
+        let size = frame.rgb.dimensions();
+        let same = |p: &Path, s: (u32, u32)| images::check_same_size(p, s, &rgb_path, size);
+        let depth_path = self.dir.join("depth").join(&name);
+        same(&depth_path, frame.depth.dimensions())?;
+        images::write_rgb(&rgb_path, &frame.rgb)?;
+        images::write_depth(&depth_path, &frame.depth, self.depth_factor)?;
+        if let Some(bg) = &frame.background {
+            let p = self.sub_path("background", &name)?;
+            same(&p, bg.dimensions())?;
+            images::write_rgb(p, bg)?;
+        }
+        if let Some(d) = &frame.depth_bg {
+            let p = self.sub_path("depth_bg", &name)?;
+            same(&p, d.dimensions())?;
+            images::write_depth(p, d, self.depth_factor)?;
+        }
+        if let Some(m) = &frame.mask {
+            let p = self.sub_path("mask", &name)?;
+            same(&p, m.dimensions())?;
+            images::write_mask(p, m)?;
+        }
+        if let Some(prob) = &frame.prob {
+            let png = self.sub_path("prob", &name)?;
+            same(&png, prob.dimensions())?;
+            images::write_prob_png(&png, prob)?;
+            images::write_prob_pfm(png.with_extension("pfm"), prob)?;
+        }
+        Ok(Association {
+            t_rgb: frame.t,
+            rgb: format!("rgb/{name}"),
+            t_depth: frame.t,
+            depth: format!("depth/{name}"),
+        })
+    }
+
+    /// Writes `association.txt` (lines sorted by time; two frames with the same 6-decimal
+    /// timestamp are an error) and, when given, `groundtruth.txt`.
+    pub fn finish(&self, frames: &[Association], groundtruth: Option<&Trajectory>) -> Result<()> {
+        let path = self.dir.join(ASSOCIATION_FILES[0]);
+        let mut sorted = frames.to_vec();
+        sorted.sort_by(|a, b| a.t_rgb.total_cmp(&b.t_rgb));
+        if let Some(w) = sorted.windows(2).find(|w| w[0].rgb == w[1].rgb) {
+            return Err(IoError::invalid(
+                &path,
+                format!("two frames share the file name {}", w[0].rgb),
+            ));
+        }
+        tum::write_associations(&path, &sorted)?;
+        if let Some(gt) = groundtruth {
+            gt.write_tum(self.dir.join("groundtruth.txt"))?;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::trajectory::StampedPose;
-    use crate::tum::Association;
     use image::{Luma, Rgb};
     use nalgebra::Vector3;
 
@@ -672,5 +810,107 @@ mod tests {
             pose.rotation.angle_to(&a.pose.rotation)
                 <= a.pose.rotation.angle_to(&b.pose.rotation) + 1e-12
         );
+    }
+}
+
+#[cfg(test)]
+mod writer_tests {
+    use super::*;
+    use crate::trajectory::StampedPose;
+    use image::{Luma, Rgb};
+
+    fn frame(k: usize) -> FrameData {
+        let t = 1000.0 + k as f64 / 30.0;
+        FrameData {
+            index: k,
+            t,
+            rgb: RgbImage::from_fn(6, 4, |x, y| Rgb([x as u8, y as u8, k as u8])),
+            depth: DepthImage::from_fn(6, 4, |x, _| Luma([0.5 + x as f32 * 0.25])),
+            background: Some(RgbImage::from_pixel(6, 4, Rgb([9, 9, 9]))),
+            depth_bg: (k == 0).then(|| DepthImage::from_pixel(6, 4, Luma([3.0]))),
+            mask: Some(GrayImage::from_fn(6, 4, |x, _| {
+                Luma([if x < 2 { 255 } else { 0 }])
+            })),
+            prob: Some(ProbMap::from_fn(6, 4, |x, y| {
+                Luma([(x + 6 * y) as f32 / 23.0])
+            })),
+            gt_pose: None,
+        }
+    }
+
+    #[test]
+    fn written_sequences_read_back_identically() {
+        use rayon::prelude::*;
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("synth_seq");
+        let w = SequenceWriter::create(&dir, &Settings::tum3()).unwrap();
+        let frames: Vec<FrameData> = (0..3).map(frame).collect();
+        let assoc: Vec<Association> = frames
+            .par_iter()
+            .rev()
+            .map(|f| w.write_frame(f).unwrap())
+            .collect();
+        let gt = Trajectory::new(
+            (0..30)
+                .map(|i| {
+                    StampedPose::new(
+                        1000.0 + i as f64 * 0.01,
+                        Se3::translation(i as f64, 0.0, 0.0),
+                    )
+                })
+                .collect(),
+        );
+        w.finish(&assoc, Some(&gt)).unwrap();
+        let seq = Sequence::open(&dir).unwrap();
+        assert_eq!(seq.layout, Layout::DynaPix);
+        assert_eq!(seq.settings().unwrap(), &Settings::tum3());
+        assert_eq!(seq.len(), 3);
+        for (k, orig) in frames.iter().enumerate() {
+            let f = seq.load_frame(k).unwrap();
+            assert!((f.t - orig.t).abs() < 5e-7);
+            assert_eq!(f.rgb, orig.rgb);
+            assert_eq!(f.background, orig.background);
+            assert_eq!(f.mask, orig.mask);
+            assert_eq!(f.prob, orig.prob, "PFM is preferred and lossless");
+            for (a, b) in f.depth.pixels().zip(orig.depth.pixels()) {
+                assert!((a[0] - b[0]).abs() <= 0.5 / 5000.0 + 1e-7);
+            }
+            assert_eq!(f.depth_bg.is_some(), k == 0);
+            let x = f.gt_pose.unwrap().translation.x;
+            assert!((x - (f.t - 1000.0) * 100.0).abs() < 1e-6, "{x}");
+        }
+        // Same-named frames and mismatched sizes are refused.
+        let dup = vec![assoc[0].clone(), assoc[0].clone()];
+        assert!(w.finish(&dup, None).is_err());
+        let mut bad = frame(5);
+        bad.mask = Some(GrayImage::new(3, 3));
+        let e = w.write_frame(&bad).unwrap_err().to_string();
+        assert!(e.contains("mask/") && e.contains("rgb/"), "{e}");
+    }
+
+    #[test]
+    fn probability_maps_written_beside_a_read_only_dataset() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("seq");
+        let w = SequenceWriter::create(&dir, &Settings::tum3()).unwrap();
+        let mut f = frame(0);
+        f.prob = None;
+        let a = w.write_frame(&f).unwrap();
+        w.finish(&[a], None).unwrap();
+        let out = tmp.path().join("motion_out");
+        let opts = SequenceOptions {
+            prob_dir: Some(out.clone()),
+            ..Default::default()
+        };
+        let seq = Sequence::open_with(&dir, &opts).unwrap();
+        assert!(seq.load_frame(0).unwrap().prob.is_none());
+        let p = ProbMap::from_pixel(6, 4, Luma([0.3]));
+        seq.write_prob(0, &p).unwrap();
+        assert!(seq.prob_png_path(0).unwrap().starts_with(&out));
+        assert!(seq.prob_png_path(0).unwrap().is_file() && seq.prob_pfm_path(0).unwrap().is_file());
+        assert!(!dir.join("prob").exists());
+        let again = Sequence::open_with(&dir, &opts).unwrap();
+        assert_eq!(again.load_frame(0).unwrap().prob.unwrap(), p);
+        assert!(seq.write_prob(7, &p).is_err());
     }
 }

@@ -1,6 +1,10 @@
 //! Line splitting shared by the text parsers, following the TUM tools' `read_file_list`:
 //! lines starting with `#` are comments, commas and tabs separate fields like spaces, empty
 //! lines are skipped. Line numbers are 1-based and refer to the original file.
+//!
+//! A comma is a separator, as in the original TUM `associate.py`/`evaluate_ate.py`. The copy
+//! shipped with DynaPix (`eval/associate.py`) turns commas into dots instead (decimal commas);
+//! the two only differ on files that contain commas, which none of the TUM files do.
 
 use std::path::Path;
 
