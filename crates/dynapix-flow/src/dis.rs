@@ -706,6 +706,105 @@ mod tests {
         assert_eq!(scale_range(1, 1, &p), (0, 0));
     }
 
+    use crate::pairs;
+
+    fn interior_epe(f: &FlowField, gt: [f32; 2], margin: u32) -> f32 {
+        let mut sum = 0.0;
+        let mut n = 0.0;
+        for y in margin..f.height - margin {
+            for x in margin..f.width - margin {
+                let v = f.get(x, y);
+                sum += ((v[0] - gt[0]).powi(2) + (v[1] - gt[1]).powi(2)).sqrt();
+                n += 1.0;
+            }
+        }
+        sum / n
+    }
+
+    #[test]
+    fn subpixel_translation_is_recovered() {
+        let (w, h) = (192, 144);
+        let b = pairs::texture(w, h);
+        for t in [[0.37f32, -0.61], [-1.25, 0.8], [2.6, 1.45]] {
+            let a = pairs::make_a(&b, &FlowField::constant(w, h, t)).unwrap();
+            let f = DisFlow::with_preset(Preset::Medium).flow(&a, &b).unwrap();
+            let epe = interior_epe(&f, t, 16);
+            eprintln!("translation {t:?}: interior EPE {epe:.4}");
+            assert!(epe < 0.05, "translation {t:?}: interior EPE {epe}");
+        }
+    }
+
+    #[test]
+    fn identical_images_give_zero_flow() {
+        let img = pairs::texture(97, 61);
+        for preset in [Preset::Ultrafast, Preset::Fast, Preset::Medium] {
+            let f = DisFlow::with_preset(preset).flow(&img, &img).unwrap();
+            let max = f
+                .data
+                .iter()
+                .map(|v| v[0].abs().max(v[1].abs()))
+                .fold(0.0f32, f32::max);
+            assert!(max < 1e-4, "{preset:?}: max |flow| {max}");
+        }
+    }
+
+    #[test]
+    fn degenerate_inputs_stay_finite() {
+        let sizes = [
+            (0, 0),
+            (1, 1),
+            (5, 3),
+            (3, 5),
+            (8, 8),
+            (9, 7),
+            (37, 29),
+            (101, 7),
+            (130, 97),
+        ];
+        for (w, h) in sizes {
+            let tex = pairs::texture(w, h);
+            let uniform = GrayImage::from_pixel(w, h, image::Luma([77]));
+            let shifted = pairs::make_a(&tex, &FlowField::constant(w, h, [0.7, -0.3])).unwrap();
+            for preset in [Preset::Ultrafast, Preset::Fast, Preset::Medium] {
+                let dis = DisFlow::with_preset(preset);
+                for (a, b) in [(&uniform, &uniform), (&shifted, &tex), (&uniform, &tex)] {
+                    let f = dis.flow(a, b).unwrap();
+                    assert_eq!((f.width, f.height), (w, h));
+                    assert_eq!(f.data.len(), (w * h) as usize);
+                    assert!(f.is_finite(), "{w}x{h} {preset:?}: non-finite flow");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn size_mismatch_and_bad_params_are_errors() {
+        let a = GrayImage::new(10, 10);
+        let b = GrayImage::new(11, 10);
+        assert!(matches!(
+            DisFlow::default().flow(&a, &b),
+            Err(FlowError::SizeMismatch { .. })
+        ));
+        let mut p = DisParams::default();
+        p.patch_stride = 0;
+        assert!(DisFlow::new(p).flow(&a, &a).is_err());
+    }
+
+    #[test]
+    fn results_do_not_depend_on_thread_count() {
+        let (w, h) = (160, 120);
+        let b = pairs::texture(w, h);
+        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| DisFlow::default().flow(&a, &b).unwrap())
+        };
+        assert_eq!(run(1), run(3));
+    }
+
     #[test]
     fn preset_parses_case_insensitively() {
         assert_eq!("Medium".parse::<Preset>().unwrap(), Preset::Medium);
