@@ -68,6 +68,11 @@ pub struct DisParams {
     pub patch_stride: usize,
     /// Gauss-Newton iterations per patch (split over the two sweeps with propagation).
     pub grad_descent_iterations: usize,
+    /// Fraction of the Gauss-Newton step taken per descent iteration. OpenCV uses
+    /// unnormalised Sobel gradients (8× the derivative) with the plain Gauss-Newton formula,
+    /// so its steps are 1/8 of the full step; the default keeps that behaviour, which
+    /// also measured best here (docs/bench/flow.md).
+    pub descent_step: f32,
     /// Compare patches after subtracting their mean (robust to brightness changes).
     pub use_mean_normalization: bool,
     /// Try the neighbours' displacements before descending (two sweeps).
@@ -94,6 +99,7 @@ impl DisParams {
             patch_size: 8,
             patch_stride,
             grad_descent_iterations,
+            descent_step: 0.125,
             use_mean_normalization: true,
             use_spatial_propagation: true,
             propagation_bands: 8,
@@ -239,6 +245,8 @@ struct LevelCtx<'a> {
     bp: &'a Plane,
     ps: usize,
     mean_norm: bool,
+    /// Fraction of the Gauss-Newton step taken per iteration.
+    step: f32,
 }
 
 /// What the descent needs about one patch of A: the inverse of its (mean-normalised)
@@ -248,13 +256,14 @@ struct Template {
     hinv: [f32; 3],
     sum_gx: f32,
     sum_gy: f32,
+    /// False for textureless patches: they take part in propagation but do not descend.
+    textured: bool,
 }
 
-/// Hessian of the patch at (px, py), or `None` for a textureless patch.
+/// Hessian and gradient sums of the patch at (px, py).
 #[inline(always)]
-fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
+fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Template {
     let (ps, w) = (ctx.ps, ctx.a.w);
-    let n = (ps * ps) as f32;
     let (mut sx, mut sy, mut hxx, mut hxy, mut hyy) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for j in 0..ps {
         let o = (py + j) * w + px;
@@ -268,23 +277,25 @@ fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
             hyy += y * y;
         }
     }
-    if ctx.mean_norm {
-        // Hessian of the mean-removed gradients.
-        hxx -= sx * sx / n;
-        hxy -= sx * sy / n;
-        hyy -= sy * sy / n;
-    }
+    // With mean normalisation the exact Hessian would use mean-removed gradients; like
+    // OpenCV we keep the raw one, which damps the steps and measured better (see
+    // docs/bench/flow.md).
     let det = hxx * hyy - hxy * hxy;
     // Relative threshold: the Hessian scales with the squared gradient magnitude.
     let scale = (hxx + hyy).max(f32::MIN_POSITIVE);
-    if det <= MIN_HESSIAN_DET * scale * scale || !det.is_finite() {
-        return None;
-    }
-    Some(Template {
-        hinv: [hyy / det, -hxy / det, hxx / det],
+    let textured = det > MIN_HESSIAN_DET * scale * scale && det.is_finite();
+    let k = ctx.step;
+    let hinv = if textured {
+        [k * hyy / det, -k * hxy / det, k * hxx / det]
+    } else {
+        [0.0; 3]
+    };
+    Template {
+        hinv,
         sum_gx: sx,
         sum_gy: sy,
-    })
+        textured,
+    }
 }
 
 /// Clamps a displacement so the patch stays inside the padded image B.
@@ -414,9 +425,10 @@ fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) 
     }
 }
 
-/// Inverse-compositional Gauss-Newton from (u, v) (whose evaluation is `start`); stops when
-/// the cost stops decreasing and returns the evaluated displacement with the lowest cost.
-/// A result further than the patch size from the start is discarded (lost match).
+/// Inverse-compositional Gauss-Newton from (u, v), whose evaluation is `start`. Like OpenCV,
+/// each iteration evaluates the patch, steps, and stops after the first step taken from a
+/// point whose cost did not decrease. A result further than the patch size from the start is
+/// discarded (the match was lost).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn descend(
@@ -431,32 +443,24 @@ fn descend(
 ) -> (f32, f32) {
     let (mut u, mut v) = (u0, v0);
     let (mut ssd, mut bx, mut by) = start;
-    let mut best = (u, v, ssd);
+    let mut prev = f32::INFINITY;
     for it in 0..iters {
+        if it > 0 {
+            (ssd, bx, by) = evaluate(ctx, t, px, py, u, v);
+        }
         let du = t.hinv[0] * bx + t.hinv[1] * by;
         let dv = t.hinv[1] * bx + t.hinv[2] * by;
         (u, v) = clamp_disp(ctx, px, py, u - du, v - dv);
-        if it + 1 == iters {
-            // The last step is not evaluated, like the reference implementation's loop.
-            if ssd <= best.2 {
-                best = (u, v, ssd);
-            }
-            break;
-        }
-        let prev = ssd;
-        (ssd, bx, by) = evaluate(ctx, t, px, py, u, v);
-        if ssd < best.2 {
-            best = (u, v, ssd);
-        }
         if ssd >= prev {
             break;
         }
+        prev = ssd;
     }
     let max_move2 = (ctx.ps * ctx.ps) as f32;
-    if (best.0 - u0).powi(2) + (best.1 - v0).powi(2) > max_move2 {
+    if (u - u0).powi(2) + (v - v0).powi(2) > max_move2 {
         (u0, v0)
     } else {
-        (best.0, best.1)
+        (u, v)
     }
 }
 
@@ -528,9 +532,10 @@ fn sweep_band_impl(
             let (mut bu, mut bv) = clamp_disp(ctx, px, py, su[idx], sv[idx]);
             su[idx] = bu;
             sv[idx] = bv;
-            let Some(t) = load_template(ctx, px, py) else {
+            let t = load_template(ctx, px, py);
+            if !t.textured && !propagate {
                 continue;
-            };
+            }
             let mut best = evaluate(ctx, &t, px, py, bu, bv);
             if propagate {
                 let horiz = if forward {
@@ -556,7 +561,11 @@ fn sweep_band_impl(
                     }
                 }
             }
-            let (u, v) = descend(ctx, &t, px, py, bu, bv, best, iters);
+            let (u, v) = if t.textured {
+                descend(ctx, &t, px, py, bu, bv, best, iters)
+            } else {
+                (bu, bv)
+            };
             su[idx] = u;
             sv[idx] = v;
         }
@@ -581,6 +590,7 @@ fn dis_level(a: &Plane, b: &Plane, u: &mut Plane, v: &mut Plane, p: &DisParams) 
         bp: &bp,
         ps,
         mean_norm: p.use_mean_normalization,
+        step: p.descent_step,
     };
     let nx = xs.len();
     let half = ps as f32 * 0.5;

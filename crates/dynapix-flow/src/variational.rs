@@ -78,6 +78,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
             *a = 0.5 * (p0 + p1);
             *z = p1 - p0;
         });
+    // True derivatives (OpenCV's [-1, 0, 1] kernel doubles them; that measured worse here).
     let (ix, iy) = avg.central_diff();
     let (ixz, iyz) = iz.central_diff();
     let (ixx, ixy) = ix.central_diff();

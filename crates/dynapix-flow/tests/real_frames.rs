@@ -4,7 +4,7 @@
 //! match stays inside the image. Skips (with a message) when the data is missing.
 //!
 //! Bounds are about 2× the errors measured when this was written (medium preset: EPE
-//! 0.08 / 0.12 / 0.22 px; OpenCV's DIS medium on the same pairs: 0.08 / 0.14 / 0.22 px).
+//! 0.07 / 0.11 / 0.19 px; OpenCV's DIS medium on the same pairs: 0.08 / 0.14 / 0.22 px).
 
 use dynapix_flow::metrics::visible_mask;
 use dynapix_flow::{DisFlow, FlowField, FlowProvider, Preset, flow_error, pairs};
