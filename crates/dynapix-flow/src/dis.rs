@@ -68,6 +68,11 @@ pub struct DisParams {
     pub patch_stride: usize,
     /// Gauss-Newton iterations per patch (split over the two sweeps with propagation).
     pub grad_descent_iterations: usize,
+    /// Fraction of the Gauss-Newton step taken per descent iteration. OpenCV uses
+    /// unnormalised Sobel gradients (8× the derivative) with the plain Gauss-Newton formula,
+    /// so its steps are 1/8 of the full step; the default keeps that behaviour, which
+    /// also measured best here (docs/bench/flow.md).
+    pub descent_step: f32,
     /// Compare patches after subtracting their mean (robust to brightness changes).
     pub use_mean_normalization: bool,
     /// Try the neighbours' displacements before descending (two sweeps).
@@ -94,6 +99,7 @@ impl DisParams {
             patch_size: 8,
             patch_stride,
             grad_descent_iterations,
+            descent_step: 0.125,
             use_mean_normalization: true,
             use_spatial_propagation: true,
             propagation_bands: 8,
@@ -239,6 +245,8 @@ struct LevelCtx<'a> {
     bp: &'a Plane,
     ps: usize,
     mean_norm: bool,
+    /// Fraction of the Gauss-Newton step taken per iteration.
+    step: f32,
 }
 
 /// What the descent needs about one patch of A: the inverse of its (mean-normalised)
@@ -248,13 +256,14 @@ struct Template {
     hinv: [f32; 3],
     sum_gx: f32,
     sum_gy: f32,
+    /// False for textureless patches: they take part in propagation but do not descend.
+    textured: bool,
 }
 
-/// Hessian of the patch at (px, py), or `None` for a textureless patch.
+/// Hessian and gradient sums of the patch at (px, py).
 #[inline(always)]
-fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
+fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Template {
     let (ps, w) = (ctx.ps, ctx.a.w);
-    let n = (ps * ps) as f32;
     let (mut sx, mut sy, mut hxx, mut hxy, mut hyy) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for j in 0..ps {
         let o = (py + j) * w + px;
@@ -268,23 +277,25 @@ fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Option<Template> {
             hyy += y * y;
         }
     }
-    if ctx.mean_norm {
-        // Hessian of the mean-removed gradients.
-        hxx -= sx * sx / n;
-        hxy -= sx * sy / n;
-        hyy -= sy * sy / n;
-    }
+    // With mean normalisation the exact Hessian would use mean-removed gradients; like
+    // OpenCV we keep the raw one, which damps the steps and measured better (see
+    // docs/bench/flow.md).
     let det = hxx * hyy - hxy * hxy;
     // Relative threshold: the Hessian scales with the squared gradient magnitude.
     let scale = (hxx + hyy).max(f32::MIN_POSITIVE);
-    if det <= MIN_HESSIAN_DET * scale * scale || !det.is_finite() {
-        return None;
-    }
-    Some(Template {
-        hinv: [hyy / det, -hxy / det, hxx / det],
+    let textured = det > MIN_HESSIAN_DET * scale * scale && det.is_finite();
+    let k = ctx.step;
+    let hinv = if textured {
+        [k * hyy / det, -k * hxy / det, k * hxx / det]
+    } else {
+        [0.0; 3]
+    };
+    Template {
+        hinv,
         sum_gx: sx,
         sum_gy: sy,
-    })
+        textured,
+    }
 }
 
 /// Clamps a displacement so the patch stays inside the padded image B.
@@ -366,6 +377,77 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
     ]
 }
 
+/// [`patch_sums`] for 8×8 patches with SSE2 (part of every x86-64 CPU): two 4-lane vectors
+/// per row. Lane order and summation order equal the portable version's.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn patch_sums_8_sse(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
+    use std::arch::x86_64::*;
+    const N: usize = 8;
+    let (aw, bw) = (ctx.a.w, ctx.bp.w);
+    let (x0, y0) = (x as usize, y as usize);
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let b = &ctx.bp.data;
+    // Every row read below lies inside these ranges; checking them once keeps the loop
+    // free of bounds checks and makes the unchecked loads sound.
+    let b_start = y0 * bw + x0;
+    let b_end = (y0 + N) * bw + x0 + N + 1;
+    let a_start = py * aw + px;
+    let a_end = (py + N - 1) * aw + px + N;
+    if b_end > b.len()
+        || a_end > ctx.a.data.len()
+        || a_end > ctx.ax.data.len()
+        || a_end > ctx.ay.data.len()
+    {
+        return [0.0; 4];
+    }
+    let (bp, ap) = (b.as_ptr(), ctx.a.data.as_ptr());
+    let (gxp, gyp) = (ctx.ax.data.as_ptr(), ctx.ay.data.as_ptr());
+    let lanes = |v: __m128| -> [f32; 4] {
+        let mut o = [0.0f32; 4];
+        // SAFETY: `o` has room for 4 floats.
+        unsafe { _mm_storeu_ps(o.as_mut_ptr(), v) };
+        o
+    };
+    // SAFETY: all loads are within the ranges checked above (rows y0..=y0+N of B from x0 to
+    // x0+N inclusive, rows py..py+N of A and its gradients from px to px+N-1).
+    let acc = unsafe {
+        let w00 = _mm_set1_ps((1.0 - fx) * (1.0 - fy));
+        let w01 = _mm_set1_ps(fx * (1.0 - fy));
+        let w10 = _mm_set1_ps((1.0 - fx) * fy);
+        let w11 = _mm_set1_ps(fx * fy);
+        let z = _mm_setzero_ps();
+        let (mut sd0, mut sd1, mut sdd0, mut sdd1) = (z, z, z, z);
+        let (mut sx0, mut sx1, mut sy0, mut sy1) = (z, z, z, z);
+        for j in 0..N {
+            let ob = b_start + j * bw;
+            let oa = a_start + j * aw;
+            for (half, (sd, sdd, sx, sy)) in [
+                (0usize, (&mut sd0, &mut sdd0, &mut sx0, &mut sy0)),
+                (4, (&mut sd1, &mut sdd1, &mut sx1, &mut sy1)),
+            ] {
+                let r0l = _mm_loadu_ps(bp.add(ob + half));
+                let r0r = _mm_loadu_ps(bp.add(ob + half + 1));
+                let r1l = _mm_loadu_ps(bp.add(ob + bw + half));
+                let r1r = _mm_loadu_ps(bp.add(ob + bw + half + 1));
+                let a = _mm_loadu_ps(ap.add(oa + half));
+                let t0 = _mm_add_ps(_mm_mul_ps(w00, r0l), _mm_mul_ps(w01, r0r));
+                let t1 = _mm_add_ps(t0, _mm_mul_ps(w10, r1l));
+                let d = _mm_sub_ps(_mm_add_ps(t1, _mm_mul_ps(w11, r1r)), a);
+                *sd = _mm_add_ps(*sd, d);
+                *sdd = _mm_add_ps(*sdd, _mm_mul_ps(d, d));
+                *sx = _mm_add_ps(*sx, _mm_mul_ps(d, _mm_loadu_ps(gxp.add(oa + half))));
+                *sy = _mm_add_ps(*sy, _mm_mul_ps(d, _mm_loadu_ps(gyp.add(oa + half))));
+            }
+        }
+        [(sd0, sd1), (sdd0, sdd1), (sx0, sx1), (sy0, sy1)]
+    };
+    acc.map(|(lo, hi)| {
+        let (l, h) = (lanes(lo), lanes(hi));
+        l.iter().chain(h.iter()).sum()
+    })
+}
+
 /// Scalar version of [`patch_sums`] for patch sizes without a specialised kernel.
 #[inline(always)]
 fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
@@ -397,6 +479,9 @@ fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) 
     let x = px as f32 + u + SEARCH_BORDER as f32;
     let y = py as f32 + v + SEARCH_BORDER as f32;
     let [sd, sdd, sdx, sdy] = match ctx.ps {
+        #[cfg(target_arch = "x86_64")]
+        8 => patch_sums_8_sse(ctx, px, py, x, y),
+        #[cfg(not(target_arch = "x86_64"))]
         8 => patch_sums::<8>(ctx, px, py, x, y),
         12 => patch_sums::<12>(ctx, px, py, x, y),
         16 => patch_sums::<16>(ctx, px, py, x, y),
@@ -414,9 +499,10 @@ fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) 
     }
 }
 
-/// Inverse-compositional Gauss-Newton from (u, v) (whose evaluation is `start`); stops when
-/// the cost stops decreasing and returns the evaluated displacement with the lowest cost.
-/// A result further than the patch size from the start is discarded (lost match).
+/// Inverse-compositional Gauss-Newton from (u, v), whose evaluation is `start`. Like OpenCV,
+/// each iteration evaluates the patch, steps, and stops after the first step taken from a
+/// point whose cost did not decrease. A result further than the patch size from the start is
+/// discarded (the match was lost).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn descend(
@@ -431,32 +517,24 @@ fn descend(
 ) -> (f32, f32) {
     let (mut u, mut v) = (u0, v0);
     let (mut ssd, mut bx, mut by) = start;
-    let mut best = (u, v, ssd);
+    let mut prev = f32::INFINITY;
     for it in 0..iters {
+        if it > 0 {
+            (ssd, bx, by) = evaluate(ctx, t, px, py, u, v);
+        }
         let du = t.hinv[0] * bx + t.hinv[1] * by;
         let dv = t.hinv[1] * bx + t.hinv[2] * by;
         (u, v) = clamp_disp(ctx, px, py, u - du, v - dv);
-        if it + 1 == iters {
-            // The last step is not evaluated, like the reference implementation's loop.
-            if ssd <= best.2 {
-                best = (u, v, ssd);
-            }
-            break;
-        }
-        let prev = ssd;
-        (ssd, bx, by) = evaluate(ctx, t, px, py, u, v);
-        if ssd < best.2 {
-            best = (u, v, ssd);
-        }
         if ssd >= prev {
             break;
         }
+        prev = ssd;
     }
     let max_move2 = (ctx.ps * ctx.ps) as f32;
-    if (best.0 - u0).powi(2) + (best.1 - v0).powi(2) > max_move2 {
+    if (u - u0).powi(2) + (v - v0).powi(2) > max_move2 {
         (u0, v0)
     } else {
-        (best.0, best.1)
+        (u, v)
     }
 }
 
@@ -528,9 +606,10 @@ fn sweep_band_impl(
             let (mut bu, mut bv) = clamp_disp(ctx, px, py, su[idx], sv[idx]);
             su[idx] = bu;
             sv[idx] = bv;
-            let Some(t) = load_template(ctx, px, py) else {
+            let t = load_template(ctx, px, py);
+            if !t.textured && !propagate {
                 continue;
-            };
+            }
             let mut best = evaluate(ctx, &t, px, py, bu, bv);
             if propagate {
                 let horiz = if forward {
@@ -556,7 +635,11 @@ fn sweep_band_impl(
                     }
                 }
             }
-            let (u, v) = descend(ctx, &t, px, py, bu, bv, best, iters);
+            let (u, v) = if t.textured {
+                descend(ctx, &t, px, py, bu, bv, best, iters)
+            } else {
+                (bu, bv)
+            };
             su[idx] = u;
             sv[idx] = v;
         }
@@ -581,6 +664,7 @@ fn dis_level(a: &Plane, b: &Plane, u: &mut Plane, v: &mut Plane, p: &DisParams) 
         bp: &bp,
         ps,
         mean_norm: p.use_mean_normalization,
+        step: p.descent_step,
     };
     let nx = xs.len();
     let half = ps as f32 * 0.5;
@@ -704,6 +788,105 @@ mod tests {
         let p = DisParams::preset(Preset::Fast);
         assert_eq!(scale_range(640, 480, &p), (2, 4));
         assert_eq!(scale_range(1, 1, &p), (0, 0));
+    }
+
+    use crate::pairs;
+
+    fn interior_epe(f: &FlowField, gt: [f32; 2], margin: u32) -> f32 {
+        let mut sum = 0.0;
+        let mut n = 0.0;
+        for y in margin..f.height - margin {
+            for x in margin..f.width - margin {
+                let v = f.get(x, y);
+                sum += ((v[0] - gt[0]).powi(2) + (v[1] - gt[1]).powi(2)).sqrt();
+                n += 1.0;
+            }
+        }
+        sum / n
+    }
+
+    #[test]
+    fn subpixel_translation_is_recovered() {
+        let (w, h) = (192, 144);
+        let b = pairs::texture(w, h);
+        for t in [[0.37f32, -0.61], [-1.25, 0.8], [2.6, 1.45]] {
+            let a = pairs::make_a(&b, &FlowField::constant(w, h, t)).unwrap();
+            let f = DisFlow::with_preset(Preset::Medium).flow(&a, &b).unwrap();
+            let epe = interior_epe(&f, t, 16);
+            eprintln!("translation {t:?}: interior EPE {epe:.4}");
+            assert!(epe < 0.05, "translation {t:?}: interior EPE {epe}");
+        }
+    }
+
+    #[test]
+    fn identical_images_give_zero_flow() {
+        let img = pairs::texture(97, 61);
+        for preset in [Preset::Ultrafast, Preset::Fast, Preset::Medium] {
+            let f = DisFlow::with_preset(preset).flow(&img, &img).unwrap();
+            let max = f
+                .data
+                .iter()
+                .map(|v| v[0].abs().max(v[1].abs()))
+                .fold(0.0f32, f32::max);
+            assert!(max < 1e-4, "{preset:?}: max |flow| {max}");
+        }
+    }
+
+    #[test]
+    fn degenerate_inputs_stay_finite() {
+        let sizes = [
+            (0, 0),
+            (1, 1),
+            (5, 3),
+            (3, 5),
+            (8, 8),
+            (9, 7),
+            (37, 29),
+            (101, 7),
+            (130, 97),
+        ];
+        for (w, h) in sizes {
+            let tex = pairs::texture(w, h);
+            let uniform = GrayImage::from_pixel(w, h, image::Luma([77]));
+            let shifted = pairs::make_a(&tex, &FlowField::constant(w, h, [0.7, -0.3])).unwrap();
+            for preset in [Preset::Ultrafast, Preset::Fast, Preset::Medium] {
+                let dis = DisFlow::with_preset(preset);
+                for (a, b) in [(&uniform, &uniform), (&shifted, &tex), (&uniform, &tex)] {
+                    let f = dis.flow(a, b).unwrap();
+                    assert_eq!((f.width, f.height), (w, h));
+                    assert_eq!(f.data.len(), (w * h) as usize);
+                    assert!(f.is_finite(), "{w}x{h} {preset:?}: non-finite flow");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn size_mismatch_and_bad_params_are_errors() {
+        let a = GrayImage::new(10, 10);
+        let b = GrayImage::new(11, 10);
+        assert!(matches!(
+            DisFlow::default().flow(&a, &b),
+            Err(FlowError::SizeMismatch { .. })
+        ));
+        let mut p = DisParams::default();
+        p.patch_stride = 0;
+        assert!(DisFlow::new(p).flow(&a, &a).is_err());
+    }
+
+    #[test]
+    fn results_do_not_depend_on_thread_count() {
+        let (w, h) = (160, 120);
+        let b = pairs::texture(w, h);
+        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| DisFlow::default().flow(&a, &b).unwrap())
+        };
+        assert_eq!(run(1), run(3));
     }
 
     #[test]

@@ -78,6 +78,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
             *a = 0.5 * (p0 + p1);
             *z = p1 - p0;
         });
+    // True derivatives (OpenCV's [-1, 0, 1] kernel doubles them; that measured worse here).
     let (ix, iy) = avg.central_diff();
     let (ixz, iyz) = iz.central_diff();
     let (ixx, ixy) = ix.central_diff();
@@ -159,11 +160,9 @@ impl RbLayout {
 
 /// Per-colour coefficients of the linear system of one fixed-point iteration.
 struct RbSystem {
-    /// Smoothness weights to the left, right, upper and lower neighbour.
-    wl: Vec<f32>,
-    wr: Vec<f32>,
-    wu: Vec<f32>,
-    wd: Vec<f32>,
+    /// Smoothness weight of the edges to the right and lower neighbours (the left and upper
+    /// edges use the neighbours' own weights, stored in the other colour).
+    ws: Vec<f32>,
     /// Right-hand sides (data term plus smoothness of the base flow).
     ru: Vec<f32>,
     rv: Vec<f32>,
@@ -177,10 +176,7 @@ impl RbSystem {
     fn new(n: usize) -> Self {
         let z = || vec![0.0f32; n];
         Self {
-            wl: z(),
-            wr: z(),
-            wu: z(),
-            wd: z(),
+            ws: z(),
             ru: z(),
             rv: z(),
             a12: z(),
@@ -224,7 +220,7 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
         env.fill_all(&mut sys);
         for _ in 0..p.sor_iterations {
             for colour in 0..2 {
-                sor_half_sweep(&lay, colour, &sys[colour], p.omega, &mut du, &mut dv);
+                sor_half_sweep(&lay, colour, &sys, p.omega, &mut du, &mut dv);
             }
         }
     }
@@ -311,10 +307,7 @@ struct BuildEnv<'a> {
 
 /// Mutable views of one padded row of every coefficient array of an [`RbSystem`].
 struct RowMut<'a> {
-    wl: &'a mut [f32],
-    wr: &'a mut [f32],
-    wu: &'a mut [f32],
-    wd: &'a mut [f32],
+    ws: &'a mut [f32],
     ru: &'a mut [f32],
     rv: &'a mut [f32],
     a12: &'a mut [f32],
@@ -325,29 +318,21 @@ struct RowMut<'a> {
 /// Splits the interior rows of a system into per-row views (for row-parallel filling).
 fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
     let r = st..(h + 1) * st;
-    s.wl[r.clone()]
+    s.ws[r.clone()]
         .chunks_mut(st)
-        .zip(s.wr[r.clone()].chunks_mut(st))
-        .zip(s.wu[r.clone()].chunks_mut(st))
-        .zip(s.wd[r.clone()].chunks_mut(st))
         .zip(s.ru[r.clone()].chunks_mut(st))
         .zip(s.rv[r.clone()].chunks_mut(st))
         .zip(s.a12[r.clone()].chunks_mut(st))
         .zip(s.inv11[r.clone()].chunks_mut(st))
         .zip(s.inv22[r].chunks_mut(st))
-        .map(
-            |((((((((wl, wr), wu), wd), ru), rv), a12), inv11), inv22)| RowMut {
-                wl,
-                wr,
-                wu,
-                wd,
-                ru,
-                rv,
-                a12,
-                inv11,
-                inv22,
-            },
-        )
+        .map(|(((((ws, ru), rv), a12), inv11), inv22)| RowMut {
+            ws,
+            ru,
+            rv,
+            a12,
+            inv11,
+            inv22,
+        })
         .collect()
 }
 
@@ -429,10 +414,8 @@ impl BuildEnv<'_> {
                 + wu * (v_up[x] - v[x])
                 + wd * (v_dn[x] - v[x]);
             let sum = wl + wr + wu + wd;
-            s.wl[j] = wl;
-            s.wr[j] = wr;
-            s.wu[j] = wu;
-            s.wd[j] = wd;
+            // Raw weight even at the border: the sweeps multiply it by the zero padding.
+            s.ws[j] = ws[x];
             s.ru[j] = b1 + su;
             s.rv[j] = b2 + sv;
             s.a12[j] = a12;
@@ -443,11 +426,12 @@ impl BuildEnv<'_> {
 }
 
 /// Updates all pixels of one colour; they only read the other colour, so rows run in
-/// parallel, and the padded layout makes the inner loop branch-free.
+/// parallel, and the zero padding makes the inner loop branch-free (a missing neighbour
+/// contributes weight × 0).
 fn sor_half_sweep(
     lay: &RbLayout,
     colour: usize,
-    s: &RbSystem,
+    sys: &[RbSystem; 2],
     omega: f32,
     du: &mut [Vec<f32>; 2],
     dv: &mut [Vec<f32>; 2],
@@ -460,6 +444,8 @@ fn sor_half_sweep(
     } else {
         (du1, &*du0, dv1, &*dv0)
     };
+    let s = &sys[colour];
+    let ws_o = &sys[1 - colour].ws;
     du_c[st..(h + 1) * st]
         .par_chunks_mut(st)
         .zip(dv_c[st..(h + 1) * st].par_chunks_mut(st))
@@ -467,15 +453,16 @@ fn sor_half_sweep(
         .for_each(|(y, (ru_row, rv_row))| {
             let (sft, len) = lay.row(colour, y);
             let o = (y + 1) * st;
-            // Row of the other colour: left neighbour of k at k + sft, right at k + sft + 1
-            // (both in padded indices); up/down neighbours at k + 1 in rows y - 1, y + 1.
+            // Other colour, padded indices: left neighbour of k at k + sft, right at
+            // k + sft + 1; upper/lower neighbours at k + 1 in rows y - 1 and y + 1.
             let ou = &du_o[o..o + st];
             let ov = &dv_o[o..o + st];
             let (ou_up, ov_up) = (&du_o[o - st..o], &dv_o[o - st..o]);
             let (ou_dn, ov_dn) = (&du_o[o + st..o + 2 * st], &dv_o[o + st..o + 2 * st]);
             let c = o + 1;
-            let (wl, wr) = (&s.wl[c..c + len], &s.wr[c..c + len]);
-            let (wu, wd) = (&s.wu[c..c + len], &s.wd[c..c + len]);
+            let w_own = &s.ws[c..c + len];
+            let w_left = &ws_o[o + sft..o + sft + len];
+            let w_up = &ws_o[o - st + 1..o - st + 1 + len];
             let (bu, bv, a12) = (&s.ru[c..c + len], &s.rv[c..c + len], &s.a12[c..c + len]);
             let (i11, i22) = (&s.inv11[c..c + len], &s.inv22[c..c + len]);
             let (ul, ur) = (&ou[sft..sft + len], &ou[sft + 1..sft + 1 + len]);
@@ -485,8 +472,8 @@ fn sor_half_sweep(
             let cur_u = &mut ru_row[1..1 + len];
             let cur_v = &mut rv_row[1..1 + len];
             for k in 0..len {
-                let nu = wl[k] * ul[k] + wr[k] * ur[k] + wu[k] * uu[k] + wd[k] * ud[k];
-                let nv = wl[k] * vl[k] + wr[k] * vr[k] + wu[k] * vu[k] + wd[k] * vd[k];
+                let nu = w_own[k] * (ur[k] + ud[k]) + w_left[k] * ul[k] + w_up[k] * uu[k];
+                let nv = w_own[k] * (vr[k] + vd[k]) + w_left[k] * vl[k] + w_up[k] * vu[k];
                 let (cu, cv) = (cur_u[k], cur_v[k]);
                 let new_u = (bu[k] + nu - a12[k] * cv) * i11[k];
                 let u1 = cu + omega * (new_u - cu);
