@@ -132,3 +132,82 @@ fn rejects_unknown_preset() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("walking_xyz"));
 }
+
+#[test]
+fn augment_keeps_real_pixels_outside_movers() {
+    let seq = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
+    ));
+    if !seq.is_dir() {
+        eprintln!("skipping: {} not found", seq.display());
+        return;
+    }
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("aug");
+    synth(&[
+        "--augment",
+        seq.to_str().expect("utf8"),
+        "--frames",
+        "3",
+        "--seed",
+        "2",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    let assoc = lines(&out.join("association.txt"));
+    assert_eq!(assoc.len(), 3);
+    let mut mover_px = 0;
+    for l in &assoc {
+        let f: Vec<&str> = l.split_whitespace().collect();
+        assert_eq!(f.len(), 4);
+        let rgb_name = Path::new(f[1]).file_name().expect("name");
+        let depth_name = Path::new(f[3]).file_name().expect("name");
+        let orig_rgb = image::open(seq.join("rgb").join(rgb_name))
+            .expect("orig rgb")
+            .to_rgb8();
+        let orig_depth = image::open(seq.join("depth").join(depth_name))
+            .expect("orig depth")
+            .to_luma16();
+        let rgb = image::open(out.join("rgb").join(rgb_name))
+            .expect("rgb")
+            .to_rgb8();
+        let bg = image::open(out.join("background").join(rgb_name))
+            .expect("bg")
+            .to_rgb8();
+        let depth = image::open(out.join("depth").join(depth_name))
+            .expect("depth")
+            .to_luma16();
+        let depth_bg = image::open(out.join("depth_bg").join(depth_name))
+            .expect("depth_bg")
+            .to_luma16();
+        let mask = image::open(out.join("mask").join(rgb_name))
+            .expect("mask")
+            .to_luma8();
+        assert_eq!(bg, orig_rgb);
+        assert_eq!(depth_bg, orig_depth);
+        for (x, y, m) in mask.enumerate_pixels() {
+            if m[0] == 0 {
+                assert_eq!(rgb.get_pixel(x, y), orig_rgb.get_pixel(x, y));
+                assert_eq!(depth.get_pixel(x, y), orig_depth.get_pixel(x, y));
+            } else {
+                mover_px += 1;
+                // Depth-tested: the mover is in front of the real surface (or that had no depth).
+                let (d, o) = (depth.get_pixel(x, y)[0], orig_depth.get_pixel(x, y)[0]);
+                assert!(
+                    d > 0 && (o == 0 || d < o),
+                    "({x},{y}): mover {d} behind real {o}"
+                );
+            }
+        }
+    }
+    assert!(
+        mover_px > 1000,
+        "movers cover only {mover_px} px over 3 frames"
+    );
+    assert!(
+        std::fs::read_to_string(out.join("camera.yaml"))
+            .expect("yaml")
+            .contains("517.3")
+    );
+}

@@ -8,6 +8,7 @@
 //! [`sensor`] adds Kinect-like depth and image effects; [`output`] writes the DynaPix folder
 //! layout (rgb, depth, background, depth_bg, mask, instance, flow, TUM lists, camera.yaml).
 
+pub mod augment;
 pub mod movers;
 pub mod output;
 pub mod preview;
@@ -64,4 +65,7 @@ pub enum SynthError {
     /// Parameters are out of range.
     #[error("invalid parameters: {0}")]
     InvalidParams(String),
+    /// Reading or writing a dataset failed (from `dynapix-io`).
+    #[error(transparent)]
+    Dataset(#[from] dynapix_io::IoError),
 }

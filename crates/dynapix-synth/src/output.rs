@@ -6,7 +6,6 @@
 //! Every file is written to `<name>.tmp` in the same folder and renamed into place, so an
 //! interrupted run never leaves a truncated file. PNG encoding is deterministic (fixed
 //! compression and filter), so the same seed gives the same bytes.
-// TODO(io): switch to dynapix_io writers once the `io` branch lands.
 
 use crate::SynthError;
 use crate::sequence::{Flow, Frame, Gray16Image, Sequence};
@@ -16,7 +15,6 @@ use image::{ExtendedColorType, GrayImage, ImageEncoder, RgbImage};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 use std::fmt::Write as _;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Sub-folders of the layout, in the order they are written.
@@ -31,14 +29,7 @@ fn io_err(path: &Path, source: std::io::Error) -> SynthError {
 
 /// Writes `bytes` to `path` atomically (temporary file in the same folder, then rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SynthError> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let mut f = std::fs::File::create(&tmp).map_err(|e| io_err(&tmp, e))?;
-    f.write_all(bytes).map_err(|e| io_err(&tmp, e))?;
-    f.sync_data().ok();
-    drop(f);
-    std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
+    Ok(dynapix_io::write_atomic(path, bytes)?)
 }
 
 fn png_bytes(
@@ -162,20 +153,26 @@ pub fn tum_line(ts: &str, pose: &Isometry3<f64>) -> String {
     )
 }
 
-/// ORB-SLAM2 settings for the sequence camera (depth factor 5000, TUM-like ORB settings).
+/// ORB-SLAM2 settings of a synthetic sequence: its camera, depth factor 5000, and the TUM
+/// values for the rest (bf 40, ThDepth 40, 1000 ORB features, FAST 20/7).
+pub fn camera_settings(cam: &PinholeCamera, fps: f64) -> dynapix_io::Settings {
+    dynapix_io::Settings {
+        fx: cam.fx,
+        fy: cam.fy,
+        cx: cam.cx,
+        cy: cam.cy,
+        dist: cam.dist,
+        width: cam.width,
+        height: cam.height,
+        fps,
+        depth_map_factor: crate::sequence::DEPTH_FACTOR as f64,
+        ..dynapix_io::Settings::tum3()
+    }
+}
+
+/// The `camera.yaml` text of a synthetic sequence (see [`camera_settings`]).
 pub fn camera_yaml(cam: &PinholeCamera, fps: f64) -> String {
-    let d = cam.dist;
-    format!(
-        "%YAML:1.0\n\
-# Written by dynapix synth: camera of the synthetic sequence (ideal pinhole).\n\
-Camera.fx: {:.6}\nCamera.fy: {:.6}\nCamera.cx: {:.6}\nCamera.cy: {:.6}\n\
-Camera.k1: {:.6}\nCamera.k2: {:.6}\nCamera.p1: {:.6}\nCamera.p2: {:.6}\nCamera.k3: {:.6}\n\
-Camera.width: {}\nCamera.height: {}\nCamera.fps: {:.1}\nCamera.bf: 40.0\nCamera.RGB: 1\n\
-ThDepth: 40.0\nDepthMapFactor: 5000.0\n\
-ORBextractor.nFeatures: 1000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\n\
-ORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n",
-        cam.fx, cam.fy, cam.cx, cam.cy, d[0], d[1], d[2], d[3], d[4], cam.width, cam.height, fps
-    )
+    camera_settings(cam, fps).to_yaml_string()
 }
 
 /// Creates the layout folders under `dir` (and `flow/` when asked).
@@ -261,4 +258,119 @@ pub fn write_sequence(
         progress(i);
     }
     write_lists(dir, seq, n)
+}
+
+/// Augments the real sequence in `seq_dir` with flying movers (see [`crate::augment`]) and
+/// writes the DynaPix layout into `out_dir`. Frames without a ground-truth pose are skipped.
+/// `max_frames` limits the number of frames written. Returns the number written.
+pub fn augment_sequence(
+    seq_dir: &Path,
+    out_dir: &Path,
+    params: &crate::augment::AugmentParams,
+    max_frames: Option<usize>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<usize, SynthError> {
+    use crate::augment::{Augmenter, median_depth};
+    let seq = dynapix_io::Sequence::open(seq_dir)?;
+    let settings = seq.settings()?.clone();
+    let cam = settings.camera();
+    let k = crate::render::Intrinsics::from(&cam);
+    let factor = seq.depth_factor as f32;
+    let frames: Vec<(&dynapix_io::FrameInfo, Isometry3<f64>)> = seq
+        .frames
+        .iter()
+        .filter_map(|f| seq.gt_pose_at(f.t).map(|p| (f, p)))
+        .take(max_frames.unwrap_or(usize::MAX))
+        .collect();
+    let Some((first, first_pose)) = frames.first() else {
+        return Err(SynthError::Format {
+            path: seq_dir.to_path_buf(),
+            what: "no frame has a ground-truth pose (groundtruth.txt missing or not covering the frames)".into(),
+        });
+    };
+    let first_depth = dynapix_io::images::read_depth_raw(&first.depth)?;
+    let med = median_depth(&first_depth, factor).ok_or_else(|| SynthError::Format {
+        path: first.depth.clone(),
+        what: "first depth image has no valid pixel".into(),
+    })?;
+    let aug = Augmenter::new(params.clone(), first_pose, med)?;
+    create_layout(out_dir, false)?;
+    let t0 = first.t;
+    let dt = if frames.len() > 1 {
+        (frames[frames.len() - 1].0.t - t0) / (frames.len() - 1) as f64
+    } else {
+        1.0 / 30.0
+    };
+    let file_name = |p: &Path| -> Result<String, SynthError> {
+        p.file_name()
+            .and_then(|n| n.to_str())
+            .map(str::to_string)
+            .ok_or_else(|| SynthError::Format {
+                path: p.to_path_buf(),
+                what: "file name is not UTF-8".into(),
+            })
+    };
+    let mut rgb_list =
+        String::from("# color images\n# file: 'dynapix synth --augment'\n# timestamp filename\n");
+    let mut depth_list =
+        String::from("# depth maps\n# file: 'dynapix synth --augment'\n# timestamp filename\n");
+    let mut assoc = String::new();
+    for (n, (info, pose)) in frames.iter().enumerate() {
+        let rgb = dynapix_io::images::read_rgb(&info.rgb)?;
+        let depth = dynapix_io::images::read_depth_raw(&info.depth)?;
+        if rgb.dimensions() != (cam.width, cam.height)
+            || depth.dimensions() != (cam.width, cam.height)
+        {
+            return Err(SynthError::Format {
+                path: info.rgb.clone(),
+                what: format!(
+                    "image size {:?} / depth {:?}, camera {}x{}",
+                    rgb.dimensions(),
+                    depth.dimensions(),
+                    cam.width,
+                    cam.height
+                ),
+            });
+        }
+        let c = aug.composite(&k, info.t - t0, dt, pose, &rgb, &depth, factor);
+        let rgb_name = file_name(&info.rgb)?;
+        let depth_name = file_name(&info.depth)?;
+        let jobs: Vec<(PathBuf, usize)> = vec![
+            (out_dir.join("rgb").join(&rgb_name), 0),
+            (out_dir.join("background").join(&rgb_name), 1),
+            (out_dir.join("depth").join(&depth_name), 2),
+            (out_dir.join("depth_bg").join(&depth_name), 3),
+            (out_dir.join("mask").join(&rgb_name), 4),
+            (out_dir.join("instance").join(&rgb_name), 5),
+        ];
+        jobs.par_iter()
+            .map(|(path, kind)| {
+                let bytes = match kind {
+                    0 => rgb_png(path, &c.rgb)?,
+                    1 => rgb_png(path, &rgb)?,
+                    2 => gray16_png(path, &c.depth)?,
+                    3 => gray16_png(path, &depth)?,
+                    4 => gray_png(path, &c.mask)?,
+                    _ => gray16_png(path, &c.instance)?,
+                };
+                write_atomic(path, &bytes)
+            })
+            .collect::<Result<Vec<()>, SynthError>>()?;
+        let _ = writeln!(rgb_list, "{:.6} rgb/{rgb_name}", info.t);
+        let _ = writeln!(depth_list, "{:.6} depth/{depth_name}", info.t_depth);
+        let _ = writeln!(
+            assoc,
+            "{:.6} rgb/{rgb_name} {:.6} depth/{depth_name}",
+            info.t, info.t_depth
+        );
+        progress(n, frames.len());
+    }
+    write_atomic(&out_dir.join("rgb.txt"), rgb_list.as_bytes())?;
+    write_atomic(&out_dir.join("depth.txt"), depth_list.as_bytes())?;
+    write_atomic(&out_dir.join("association.txt"), assoc.as_bytes())?;
+    let gt_src = seq_dir.join("groundtruth.txt");
+    let gt = std::fs::read(&gt_src).map_err(|e| io_err(&gt_src, e))?;
+    write_atomic(&out_dir.join("groundtruth.txt"), &gt)?;
+    settings.write(out_dir.join("camera.yaml"))?;
+    Ok(frames.len())
 }

@@ -27,9 +27,9 @@ pub struct Args {
     /// sitting, flying, occlusion, loop.
     #[arg(long, default_value = "walking_xyz")]
     pub preset: String,
-    /// Number of frames (30 Hz).
-    #[arg(long, default_value_t = 300)]
-    pub frames: usize,
+    /// Number of frames (30 Hz; default 300). With --augment: at most this many frames.
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// Seed: same preset and seed give identical bytes.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -66,6 +66,13 @@ pub struct Args {
     /// Time the renderer on this many frames (both versions per frame) and print the figures.
     #[arg(long, value_name = "FRAMES")]
     pub bench: Option<usize>,
+    /// Insert virtual movers into the real TUM sequence SEQ_DIR (uses its ground truth and
+    /// depth) and write the DynaPix layout into --out.
+    #[arg(long, value_name = "SEQ_DIR")]
+    pub augment: Option<PathBuf>,
+    /// Number of virtual objects for --augment.
+    #[arg(long, default_value_t = 3)]
+    pub objects: usize,
 }
 
 fn params(args: &Args) -> anyhow::Result<SynthParams> {
@@ -115,7 +122,7 @@ fn params(args: &Args) -> anyhow::Result<SynthParams> {
     };
     Ok(SynthParams {
         preset,
-        frames: args.frames,
+        frames: args.frames.unwrap_or(300),
         seed: args.seed,
         scene: dynapix_synth::SceneParams::for_width(cam.width),
         camera: cam,
@@ -129,6 +136,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let p = params(&args)?;
     if args.out.is_none() && args.preview.is_none() && args.bench.is_none() {
         bail!("nothing to do: give --out DIR, --preview OUT.png or --bench N");
+    }
+    if let Some(seq_dir) = &args.augment {
+        let Some(out) = &args.out else {
+            bail!("--augment needs --out DIR");
+        };
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let params = dynapix_synth::augment::AugmentParams {
+            seed: args.seed,
+            objects: args.objects,
+            ..Default::default()
+        };
+        let bar = ProgressBar::new(0);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} augment [{bar:40}] {pos}/{len} frames, eta {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        let n = output::augment_sequence(seq_dir, out, &params, args.frames, &mut |i, total| {
+            bar.set_length(total as u64);
+            bar.set_position(i as u64 + 1);
+        })
+        .with_context(|| format!("augmenting {} into {}", seq_dir.display(), out.display()))?;
+        bar.finish();
+        tracing::info!(
+            "augmented {n} frames of {} into {}",
+            seq_dir.display(),
+            out.display()
+        );
+        return Ok(());
     }
     if let Some(n) = args.bench {
         bench(&p, n)?;
