@@ -342,45 +342,79 @@ impl OrbExtractor {
     }
 }
 
+/// Pattern coordinates split by component for a vectorisable rotation: x of all 512 points
+/// (pair members a and b interleaved), then y.
+struct PatternSoa {
+    x: [f32; 512],
+    y: [f32; 512],
+}
+
+static PATTERN_SOA: std::sync::LazyLock<PatternSoa> = std::sync::LazyLock::new(|| {
+    let mut x = [0f32; 512];
+    let mut y = [0f32; 512];
+    for (i, p) in pattern::BIT_PATTERN_31.iter().enumerate() {
+        x[2 * i] = p[0] as f32;
+        y[2 * i] = p[1] as f32;
+        x[2 * i + 1] = p[2] as f32;
+        y[2 * i + 1] = p[3] as f32;
+    }
+    PatternSoa { x, y }
+});
+
+/// Largest offset of a rotated pattern point from the keypoint (⌈13·√2⌉ = 19 bounds it).
+const PATTERN_REACH: usize = 19;
+
 /// rBRIEF: 256 intensity comparisons of the learned pattern rotated by `angle_deg`, sampled on
-/// the blurred level image around (x, y).
+/// the blurred level image around (x, y). Offsets are rounded half to even as `cvRound`.
 fn describe(img: &Plane, x: usize, y: usize, angle_deg: f32) -> Descriptor {
     let ang = angle_deg * (std::f32::consts::PI / 180.0);
     let (a, b) = (ang.cos(), ang.sin());
-    let (cx, cy) = (x as i32, y as i32);
-    let max_x = img.w as i32 - 1;
-    let max_y = img.h as i32 - 1;
-    // Keypoints are ≥ 19 px from the border and the rotated pattern spans ≤ 18 px, so the clamp
-    // never triggers on extracted keypoints; it only guards against misuse.
-    let sample = |px: i8, py: i8| -> u8 {
-        let (px, py) = (px as f32, py as f32);
-        let dy = round_even(px * b + py * a);
-        let dx = round_even(px * a - py * b);
-        img.at(
-            (cx + dx).clamp(0, max_x) as usize,
-            (cy + dy).clamp(0, max_y) as usize,
-        )
-    };
-    let mut d = [0u8; 32];
-    for (i, byte) in d.iter_mut().enumerate() {
-        let mut val = 0u8;
-        for bit in 0..8 {
-            let p = pattern::BIT_PATTERN_31[i * 8 + bit];
-            if sample(p[0], p[1]) < sample(p[2], p[3]) {
-                val |= 1 << bit;
-            }
+    let pat = &*PATTERN_SOA;
+    let mut dx = [0i32; 512];
+    let mut dy = [0i32; 512];
+    for i in 0..512 {
+        let (px, py) = (pat.x[i], pat.y[i]);
+        dy[i] = round_even(px * b + py * a);
+        dx[i] = round_even(px * a - py * b);
+    }
+    let inside = x >= PATTERN_REACH
+        && y >= PATTERN_REACH
+        && x + PATTERN_REACH < img.w
+        && y + PATTERN_REACH < img.h;
+    let mut vals = [0u8; 512];
+    if inside {
+        // Extracted keypoints are ≥ 19 px from every border, so all samples are inside.
+        let centre = (y * img.w + x) as isize;
+        let w = img.w as isize;
+        for i in 0..512 {
+            vals[i] = img.data[(centre + dy[i] as isize * w + dx[i] as isize) as usize];
         }
-        *byte = val;
+    } else {
+        let (mx, my) = (img.w as i32 - 1, img.h as i32 - 1);
+        for i in 0..512 {
+            let sx = (x as i32 + dx[i]).clamp(0, mx.max(0)) as usize;
+            let sy = (y as i32 + dy[i]).clamp(0, my.max(0)) as usize;
+            vals[i] = img.data.get(sy * img.w + sx).copied().unwrap_or(0);
+        }
+    }
+    let mut d = [0u8; 32];
+    for (byte, chunk) in d.iter_mut().zip(vals.chunks_exact(16)) {
+        let mut v = 0u8;
+        for bit in 0..8 {
+            v |= ((chunk[2 * bit] < chunk[2 * bit + 1]) as u8) << bit;
+        }
+        *byte = v;
     }
     d
 }
 
-/// Round half to even (as `cvRound`) without a libm call: adding and subtracting 1.5·2²³
-/// leaves the nearest integer under the default rounding mode; exact for |x| < 2²².
+/// Round half to even (as `cvRound`) without a libm call: adding 1.5·2²³ leaves the nearest
+/// integer (default rounding mode) in the low mantissa bits, read back with integer arithmetic
+/// so that the loop vectorises; exact for |x| < 2²².
 #[inline(always)]
 fn round_even(x: f32) -> i32 {
     const MAGIC: f32 = 12_582_912.0;
-    ((x + MAGIC) - MAGIC) as i32
+    ((x + MAGIC).to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32)
 }
 
 /// Per-level feature budget: n₀ = N(1−1/s)/(1−(1/s)^L) rounded, ×1/s per level, the last level
@@ -441,7 +475,7 @@ pub fn rgb_to_gray_orbslam(img: &RgbImage) -> GrayImage {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 #[cfg(test)]
 mod round_tests {

@@ -42,6 +42,7 @@ pub(crate) struct FastScratch {
     scores: Vec<i32>,
     cands: Vec<Corner>,
     flags: Vec<u8>,
+    idx: Vec<usize>,
 }
 
 /// True when the 16-bit circular mask has ≥ 9 contiguous set bits.
@@ -69,21 +70,33 @@ fn offsets(stride: usize) -> [isize; 16] {
 #[inline]
 fn corner_score(data: &[u8], c: usize, off: &[isize; 16], threshold: i32) -> i32 {
     let v = data[c] as i32;
-    let mut d = [0i32; 16];
+    // Differences around the circle, wrapped so that every 9-arc is a contiguous window.
+    let mut d = [0i32; 24];
     for k in 0..16 {
         d[k] = v - data[(c as isize + off[k]) as usize] as i32;
     }
+    for k in 16..24 {
+        d[k] = d[k - 16];
+    }
+    // Window minima / maxima of length 2, 4, 8 by doubling, then 9.
+    let mut mn2 = [0i32; 23];
+    let mut mx2 = [0i32; 23];
+    for i in 0..23 {
+        mn2[i] = d[i].min(d[i + 1]);
+        mx2[i] = d[i].max(d[i + 1]);
+    }
+    let mut mn4 = [0i32; 21];
+    let mut mx4 = [0i32; 21];
+    for i in 0..21 {
+        mn4[i] = mn2[i].min(mn2[i + 2]);
+        mx4[i] = mx2[i].max(mx2[i + 2]);
+    }
     let mut best = threshold;
-    for start in 0..16 {
-        let mut mn = i32::MAX;
-        let mut mx = i32::MIN;
-        for t in 0..ARC {
-            let e = d[(start + t) & 15];
-            mn = mn.min(e);
-            mx = mx.max(e);
-        }
+    for i in 0..16 {
+        let mn9 = mn4[i].min(mn4[i + 4]).min(d[i + 8]);
+        let mx9 = mx4[i].max(mx4[i + 4]).max(d[i + 8]);
         // Centre brighter than the whole arc (mn > 0) or darker (−mx > 0).
-        best = best.max(mn).max(-mx);
+        best = best.max(mn9).max(-mx9);
     }
     best - 1
 }
@@ -138,10 +151,20 @@ pub(crate) fn detect_roi(
             let dark = (d0 & d4) | (d4 & d8) | (d8 & d12) | (d12 & d0);
             flags[i] = (bright | dark) as u8;
         }
-        for (i, &f) in flags.iter().enumerate() {
-            if f == 0 {
+        let candidates = &mut scratch.idx;
+        candidates.clear();
+        for (ci, chunk) in flags.chunks(8).enumerate() {
+            // Most pixels fail the pre-test: skip eight at a time.
+            if chunk.iter().all(|&f| f == 0) {
                 continue;
             }
+            for (j, &f) in chunk.iter().enumerate() {
+                if f != 0 {
+                    candidates.push(ci * 8 + j);
+                }
+            }
+        }
+        for &i in candidates.iter() {
             let rx = i + 3;
             let c = y * stride + x0 + rx;
             let v = data[c] as i32;

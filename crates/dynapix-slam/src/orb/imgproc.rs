@@ -131,6 +131,7 @@ fn gaussian_kernel_q8(radius: usize, sigma: f64) -> Vec<i32> {
 
 /// Separable Gaussian blur (window `2·radius+1`, `sigma`) with reflect-101 borders, in 8.8
 /// fixed point per pass and rounding at the end (as OpenCV's 8-bit smoothing).
+#[allow(clippy::needless_range_loop)] // indexed loops vectorise here, zipped iterators did not
 pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
     let (w, h) = (src.w, src.h);
     if w == 0 || h == 0 {
@@ -144,15 +145,28 @@ pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
     let mut padded = vec![0u8; w + 2 * radius];
     for y in 0..h {
         let row = &src.data[y * w..(y + 1) * w];
-        for (i, p) in padded.iter_mut().enumerate() {
-            *p = row[reflect101(i as isize - radius as isize, w)];
+        padded[radius..radius + w].copy_from_slice(row);
+        for i in 0..radius {
+            padded[i] = row[reflect101(i as isize - radius as isize, w)];
+            padded[radius + w + i] = row[reflect101((w + i) as isize, w)];
         }
         let out = &mut tmp[y * w..(y + 1) * w];
-        out.fill(0);
-        for (t, &kv) in k.iter().enumerate() {
-            let kv = kv as u16;
-            for (o, &p) in out.iter_mut().zip(&padded[t..t + w]) {
-                *o += kv * p as u16;
+        if radius == 3 {
+            hpass7(&padded, out, [k[0], k[1], k[2], k[3]]);
+            continue;
+        }
+        // Symmetric kernel: pair taps t and 2r−t to halve the multiplications.
+        let kc = k[radius] as u16;
+        let mid = &padded[radius..radius + w];
+        for i in 0..w {
+            out[i] = kc * mid[i] as u16;
+        }
+        for t in 0..radius {
+            let kv = k[t] as u16;
+            let l = &padded[t..t + w];
+            let r = &padded[2 * radius - t..2 * radius - t + w];
+            for i in 0..w {
+                out[i] += kv * (l[i] as u16 + r[i] as u16);
             }
         }
     }
@@ -160,19 +174,70 @@ pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
     let mut data = vec![0u8; w * h];
     let mut acc = vec![0u32; w];
     for y in 0..h {
-        acc.fill(1 << 15);
-        for (t, &kv) in k.iter().enumerate().take(taps) {
+        let row = |t: usize| {
             let sy = reflect101(y as isize + t as isize - radius as isize, h);
-            let kv = kv as u32;
-            for (a, &v) in acc.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
-                *a += kv * v as u32;
+            &tmp[sy * w..(sy + 1) * w]
+        };
+        let out = &mut data[y * w..(y + 1) * w];
+        if radius == 3 {
+            let rows = [row(0), row(1), row(2), row(3), row(4), row(5), row(6)];
+            vpass7(rows, out, [k[0], k[1], k[2], k[3]]);
+            continue;
+        }
+        acc.fill(1 << 15);
+        let kc = k[radius] as u32;
+        let c = row(radius);
+        for i in 0..w {
+            acc[i] += kc * c[i] as u32;
+        }
+        for t in 0..radius {
+            let kv = k[t] as u32;
+            let (l, r) = (row(t), row(taps - 1 - t));
+            for i in 0..w {
+                acc[i] += kv * (l[i] as u32 + r[i] as u32);
             }
         }
-        for (o, &a) in data[y * w..(y + 1) * w].iter_mut().zip(&acc) {
+        for (o, &a) in out.iter_mut().zip(&acc) {
             *o = (a >> 16).min(255) as u8;
         }
     }
     Plane { w, h, data }
+}
+
+/// Horizontal 7-tap symmetric pass of one padded row (`padded.len() = out.len() + 6`), all taps
+/// in one expression per pixel so that it vectorises.
+fn hpass7(padded: &[u8], out: &mut [u16], k: [i32; 4]) {
+    let w = out.len();
+    let (k0, k1, k2, k3) = (k[0] as u16, k[1] as u16, k[2] as u16, k[3] as u16);
+    let (p0, p1, p2, p3) = (
+        &padded[0..w],
+        &padded[1..1 + w],
+        &padded[2..2 + w],
+        &padded[3..3 + w],
+    );
+    let (p4, p5, p6) = (&padded[4..4 + w], &padded[5..5 + w], &padded[6..6 + w]);
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = k3 * p3[i] as u16
+            + k0 * (p0[i] as u16 + p6[i] as u16)
+            + k1 * (p1[i] as u16 + p5[i] as u16)
+            + k2 * (p2[i] as u16 + p4[i] as u16);
+    }
+}
+
+/// Vertical 7-tap symmetric pass over seven 8.8 fixed-point rows, rounded to 8 bits.
+fn vpass7(r: [&[u16]; 7], out: &mut [u8], k: [i32; 4]) {
+    let w = out.len();
+    let (k0, k1, k2, k3) = (k[0] as u32, k[1] as u32, k[2] as u32, k[3] as u32);
+    let (r0, r1, r2, r3) = (&r[0][..w], &r[1][..w], &r[2][..w], &r[3][..w]);
+    let (r4, r5, r6) = (&r[4][..w], &r[5][..w], &r[6][..w]);
+    for (i, o) in out.iter_mut().enumerate() {
+        let a = k3 * r3[i] as u32
+            + k0 * (r0[i] as u32 + r6[i] as u32)
+            + k1 * (r1[i] as u32 + r5[i] as u32)
+            + k2 * (r2[i] as u32 + r4[i] as u32)
+            + (1 << 15);
+        *o = (a >> 16).min(255) as u8;
+    }
 }
 
 /// OpenCV's `fastAtan2`: a polynomial approximation of atan2 in degrees, range [0, 360),
