@@ -30,9 +30,13 @@ pub(crate) mod testutil;
 use image::{ImageBuffer, Luma};
 use serde::{Deserialize, Serialize};
 
+pub use background::{Background, ReconstructParams, Source, reconstruct_background};
 pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
+pub use pipeline::{
+    MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
+};
 pub use splat::{SplatParams, Warped, splat};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.
