@@ -73,6 +73,9 @@ pub struct Source<'a> {
     pub t_ts: Se3,
 }
 
+/// One reconstructed image row: colours, depths, sample counts.
+type Row = (Vec<[u8; 3]>, Vec<f32>, Vec<u8>);
+
 fn median_u8(v: &mut [u8]) -> u8 {
     let mid = v.len() / 2;
     *v.select_nth_unstable(mid).1
@@ -102,7 +105,7 @@ pub fn reconstruct_background(
     let mut image = RgbImage::new(cam.width, cam.height);
     let mut bdepth = FloatImage::new(cam.width, cam.height);
     let mut samples = vec![0u8; w * cam.height as usize];
-    let rows: Vec<(Vec<[u8; 3]>, Vec<f32>, Vec<u8>)> = (0..cam.height as usize)
+    let rows: Vec<Row> = (0..cam.height as usize)
         .into_par_iter()
         .map(|y| {
             let mut cols = Vec::with_capacity(w);

@@ -130,7 +130,7 @@ pub fn movable(
     let size = image.dimensions();
     check_size("background image", size, background.dimensions())?;
     check_size("depth image", size, depth.dimensions())?;
-    if !(params.clip_hi > params.clip_lo) {
+    if params.clip_hi.partial_cmp(&params.clip_lo) != Some(std::cmp::Ordering::Greater) {
         return Err(MotionError::InvalidParam {
             name: "clip_hi",
             message: format!(

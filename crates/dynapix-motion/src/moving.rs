@@ -221,16 +221,27 @@ struct PairResult {
     valid: Vec<bool>,
 }
 
-fn pair(
-    cur: &FrameImages,
-    cur_gray: &GrayImage,
-    bg_gray: &GrayImage,
-    nb: &Neighbour,
-    cam: &PinholeCamera,
-    splat_params: &SplatParams,
-    flow: &dyn FlowProvider,
+/// What every neighbour pair shares.
+struct PairContext<'a> {
+    cur: &'a FrameImages<'a>,
+    cur_gray: &'a GrayImage,
+    bg_gray: &'a GrayImage,
+    cam: &'a PinholeCamera,
+    splat_params: &'a SplatParams,
+    flow: &'a dyn FlowProvider,
     mode: Mode,
-) -> Result<PairResult, MotionError> {
+}
+
+fn pair(ctx: &PairContext, nb: &Neighbour) -> Result<PairResult, MotionError> {
+    let PairContext {
+        cur,
+        cur_gray,
+        bg_gray,
+        cam,
+        splat_params,
+        flow,
+        mode,
+    } = *ctx;
     let (wd, wb) = rayon::join(
         || splat(nb.frame.rgb, nb.frame.depth, &nb.t_cn, cam, splat_params),
         || {
@@ -279,7 +290,7 @@ pub fn moving_term(
     check_size("current image", size, cur.rgb.dimensions())?;
     check_size("current background", size, cur.background.dimensions())?;
     let (w, h) = (cam.width as usize, cam.height as usize);
-    if !(params.clip[1] > params.clip[0]) {
+    if params.clip[1].partial_cmp(&params.clip[0]) != Some(std::cmp::Ordering::Greater) {
         return Err(MotionError::InvalidParam {
             name: "clip",
             message: format!("upper bound must exceed lower bound, got {:?}", params.clip),
@@ -287,20 +298,18 @@ pub fn moving_term(
     }
     let cur_gray = to_gray(cur.rgb);
     let bg_gray = to_gray(cur.background);
+    let ctx = PairContext {
+        cur,
+        cur_gray: &cur_gray,
+        bg_gray: &bg_gray,
+        cam,
+        splat_params,
+        flow,
+        mode: params.mode,
+    };
     let pairs: Vec<PairResult> = neighbours
         .par_iter()
-        .map(|nb| {
-            pair(
-                cur,
-                &cur_gray,
-                &bg_gray,
-                nb,
-                cam,
-                splat_params,
-                flow,
-                params.mode,
-            )
-        })
+        .map(|nb| pair(&ctx, nb))
         .collect::<Result<_, _>>()?;
     let mut m = FloatImage::new(cam.width, cam.height);
     if pairs.is_empty() {
@@ -368,12 +377,10 @@ mod tests {
         }
     }
 
-    fn scene_frames(
-        with_mover: bool,
-    ) -> (
-        PinholeCamera,
-        Vec<(RgbImage, FloatImage, RgbImage, FloatImage, Se3)>,
-    ) {
+    /// rgb, depth, background, background depth, pose.
+    type TestFrame = (RgbImage, FloatImage, RgbImage, FloatImage, Se3);
+
+    fn scene_frames(with_mover: bool) -> (PinholeCamera, Vec<TestFrame>) {
         let cam = small_camera();
         let scene = Scene::default();
         let poses = [
