@@ -6,6 +6,11 @@
 //! 3-vector residual `(u, v, uR) − (fx·X/Z + cx, fy·Y/Z + cy, fx·X/Z + cx − bf/Z)`, one
 //! without depth a 2-vector residual (mono edge). Poses are `T_cw` (world → camera).
 
+pub mod ba;
+mod edge;
+pub mod pose;
 pub mod problem;
 
+pub use ba::bundle_adjust;
+pub use pose::optimize_pose;
 pub use problem::*;
