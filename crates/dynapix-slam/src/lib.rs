@@ -7,7 +7,6 @@ pub mod frame;
 pub mod local_mapping;
 pub mod map;
 pub mod matcher;
-mod optim_shim;
 pub mod orb;
 pub mod system;
 pub mod tracking;

@@ -460,7 +460,7 @@ impl LocalMapper {
             points: pts,
             edges,
         };
-        let result = crate::optim_shim::bundle_adjust(&problem, &self.params.ba);
+        let result = dynapix_optim::bundle_adjust(&problem, &self.params.ba);
         let mut outliers = 0;
         for (e, &(m, o)) in edge_ref.iter().enumerate() {
             if !result.inlier.get(e).copied().unwrap_or(true) {

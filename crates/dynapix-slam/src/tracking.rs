@@ -379,7 +379,7 @@ impl Tracker {
             points,
             observations: obs,
         };
-        let result = crate::optim_shim::optimize_pose(&problem, &self.params.pose);
+        let result = dynapix_optim::optimize_pose(&problem, &self.params.pose);
         frame.pose = Some(result.pose);
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
