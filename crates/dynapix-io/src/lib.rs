@@ -2,6 +2,15 @@
 //! DynaPix and GRADE folder layouts, ORB-SLAM2 settings, trajectories and probability maps.
 //! Every parser reports errors with the file and line; every writer is atomic.
 
+pub mod atomic;
 pub mod error;
+pub mod images;
+mod text;
+pub mod trajectory;
+pub mod tum;
 
+pub use atomic::write_atomic;
 pub use error::{IoError, Result};
+pub use images::{DepthImage, Gray16Image, ProbMap};
+pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
+pub use tum::{Association, ListEntry, associate};
