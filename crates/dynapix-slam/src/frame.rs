@@ -21,6 +21,17 @@ pub fn transform(t: &Se3, p: &Vector3<f64>) -> Vector3<f64> {
     t.transform_point(&Point3::from(*p)).coords
 }
 
+/// Re-normalises the rotation quaternion. Products of poses (motion model: velocity ·
+/// last pose, velocity = current · last⁻¹) feed rounding errors of the quaternion norm back
+/// into themselves and make them grow geometrically, so every pose the tracker keeps is
+/// normalised.
+pub fn normalized(t: &Se3) -> Se3 {
+    Se3::from_parts(
+        t.translation,
+        nalgebra::UnitQuaternion::new_normalize(t.rotation.into_inner()),
+    )
+}
+
 /// Scale factors and σ² per pyramid level (ORB-SLAM2 `mvScaleFactors`, `mvLevelSigma2`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ScalePyramid {

@@ -470,7 +470,7 @@ impl LocalMapper {
         }
         for (i, &id) in kf_ids.iter().enumerate().take(n_local) {
             if let (Some(k), Some(p)) = (map.keyframe_mut(id), result.poses.get(i)) {
-                k.pose = *p;
+                k.pose = crate::frame::normalized(p);
             }
         }
         for (pi, &m) in points.iter().enumerate() {

@@ -253,6 +253,7 @@ pub fn search_frame_by_projection(
             }
         }
     }
+    let before = n;
     if check_orientation {
         for idx in hist.rejected() {
             if cur.map_points[idx].take().is_some() {
@@ -260,6 +261,7 @@ pub fn search_frame_by_projection(
             }
         }
     }
+    tracing::debug!(frame = cur.id, last_matched = last.map_points.iter().flatten().count(), before, after = n, "frame projection");
     n
 }
 

@@ -10,7 +10,7 @@ use std::collections::{BTreeMap, HashSet};
 use dynapix_geometry::Se3;
 use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem, StereoCamera};
 
-use crate::frame::{Frame, RgbdCamera, transform};
+use crate::frame::{Frame, RgbdCamera, normalized, transform};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams, ProjectionCandidate};
 
@@ -246,7 +246,13 @@ impl Tracker {
             if let (Some(cur), Some(last)) =
                 (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
             {
-                self.velocity = Some(cur * last.inverse());
+                self.velocity = Some(normalized(&(cur * last.inverse())));
+                tracing::debug!(
+                    frame = frame.id,
+                    vel_t = self.velocity.map(|v| v.translation.vector.norm()),
+                    vel_r = self.velocity.map(|v| v.rotation.angle()),
+                    "velocity"
+                );
             } else {
                 self.velocity = None;
             }
@@ -380,9 +386,25 @@ impl Tracker {
             observations: obs,
         };
         let result = dynapix_optim::optimize_pose(&problem, &self.params.pose);
-        frame.pose = Some(result.pose);
+        frame.pose = Some(normalized(&result.pose));
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
+        }
+        if tracing::enabled!(tracing::Level::TRACE) {
+            let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
+            for (k, &i) in idx.iter().enumerate() {
+                if frame.outlier[i] { continue; }
+                let pc = transform(&result.pose, &problem.points[k]);
+                if let Some((u, v, ur)) = self.cam.project(&pc) {
+                    let o = &problem.observations[k];
+                    let lv = (frame.keys_un[i].octave as usize).min(7);
+                    per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
+                    per[lv].1 += 1;
+                    if let Some(r) = o.u_right { per[lv].2 += (ur - r).abs(); }
+                }
+            }
+            let s: Vec<String> = per.iter().map(|(e, n, r)| format!("{}:{:.2}/{:.2}", n, e / (*n).max(1) as f64, r / (*n).max(1) as f64)).collect();
+            tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
         }
         result.num_inliers
     }
@@ -433,7 +455,7 @@ impl Tracker {
             return false;
         };
         let Some(lp) = last.pose else { return false };
-        frame.pose = Some(v * lp);
+        frame.pose = Some(normalized(&(v * lp)));
         frame.map_points.iter_mut().for_each(|m| *m = None);
         let th = self.params.motion_th;
         let mut n = matcher::search_frame_by_projection(
@@ -461,7 +483,9 @@ impl Tracker {
             return false;
         }
         self.optimize_pose(map, frame);
-        self.discard_outliers(map, frame) >= self.params.min_inliers_frame
+        let good = self.discard_outliers(map, frame);
+        tracing::debug!(frame = frame.id, matches = n, good, "motion model");
+        good >= self.params.min_inliers_frame
     }
 
     /// Local keyframes: all sharing points with the frame, plus per keyframe one new best
@@ -637,6 +661,13 @@ impl Tracker {
             }
         }
         self.inliers = inliers;
+        tracing::debug!(
+            frame = frame.id,
+            local_kfs = self.local_kfs.len(),
+            local_points = self.local_points.len(),
+            inliers,
+            "local map tracked"
+        );
         if frame.id < self.last_reloc_frame + self.max_frames()
             && inliers < self.params.local_min_inliers_reloc
         {
