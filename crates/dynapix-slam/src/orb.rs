@@ -354,8 +354,8 @@ fn describe(img: &Plane, x: usize, y: usize, angle_deg: f32) -> Descriptor {
     // never triggers on extracted keypoints; it only guards against misuse.
     let sample = |px: i8, py: i8| -> u8 {
         let (px, py) = (px as f32, py as f32);
-        let dy = (px * b + py * a).round_ties_even() as i32;
-        let dx = (px * a - py * b).round_ties_even() as i32;
+        let dy = round_even(px * b + py * a);
+        let dx = round_even(px * a - py * b);
         img.at(
             (cx + dx).clamp(0, max_x) as usize,
             (cy + dy).clamp(0, max_y) as usize,
@@ -373,6 +373,14 @@ fn describe(img: &Plane, x: usize, y: usize, angle_deg: f32) -> Descriptor {
         *byte = val;
     }
     d
+}
+
+/// Round half to even (as `cvRound`) without a libm call: adding and subtracting 1.5·2²³
+/// leaves the nearest integer under the default rounding mode; exact for |x| < 2²².
+#[inline(always)]
+fn round_even(x: f32) -> i32 {
+    const MAGIC: f32 = 12_582_912.0;
+    ((x + MAGIC) - MAGIC) as i32
 }
 
 /// Per-level feature budget: n₀ = N(1−1/s)/(1−(1/s)^L) rounded, ×1/s per level, the last level
@@ -433,4 +441,15 @@ pub fn rgb_to_gray_orbslam(img: &RgbImage) -> GrayImage {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
+
+#[cfg(test)]
+mod round_tests {
+    #[test]
+    fn round_even_matches_round_ties_even() {
+        for i in -4000..4000 {
+            let x = i as f32 * 0.25 + 0.001 * (i % 3) as f32;
+            assert_eq!(super::round_even(x), x.round_ties_even() as i32, "{x}");
+        }
+    }
+}

@@ -41,6 +41,18 @@ pub(crate) struct Corner {
 pub(crate) struct FastScratch {
     scores: Vec<i32>,
     cands: Vec<Corner>,
+    flags: Vec<u8>,
+}
+
+/// True when the 16-bit circular mask has ≥ 9 contiguous set bits.
+#[inline(always)]
+fn has_arc(m: u32) -> bool {
+    let full = m | (m << 16);
+    let mut acc = full;
+    for s in 1..ARC as u32 {
+        acc &= full >> s;
+    }
+    acc & 0xFFFF != 0
 }
 
 /// Linear offsets of the circle for a row stride.
@@ -94,67 +106,54 @@ pub(crate) fn detect_roi(
     let stride = img.w;
     let off = offsets(stride);
     let data = &img.data[..];
-    let t = threshold;
+    let t = threshold.clamp(0, 255) as u8;
     scratch.scores.clear();
     scratch.scores.resize(rw * rh, 0);
     scratch.cands.clear();
+    scratch.flags.clear();
+    scratch.flags.resize(rw, 0);
+    let n = rw - 6;
     for ry in 3..rh - 3 {
         let y = y0 + ry;
-        for rx in 3..rw - 3 {
+        let row = &data[y * stride + x0..y * stride + x1];
+        let up = &data[(y - 3) * stride + x0..(y - 3) * stride + x1];
+        let dn = &data[(y + 3) * stride + x0..(y + 3) * stride + x1];
+        // Quick branch-free pre-test on the compass pixels 0 (up), 4 (right), 8 (down),
+        // 12 (left): any 9-arc contains two neighbouring compass pixels of its class.
+        let (c, rt, lt, u, d) = (
+            &row[3..3 + n],
+            &row[6..6 + n],
+            &row[..n],
+            &up[3..3 + n],
+            &dn[3..3 + n],
+        );
+        let flags = &mut scratch.flags[..n];
+        for i in 0..n {
+            let v = c[i];
+            let hi = v.saturating_add(t);
+            let lo = v.saturating_sub(t);
+            let (b0, b4, b8, b12) = (u[i] > hi, rt[i] > hi, d[i] > hi, lt[i] > hi);
+            let (d0, d4, d8, d12) = (u[i] < lo, rt[i] < lo, d[i] < lo, lt[i] < lo);
+            let bright = (b0 & b4) | (b4 & b8) | (b8 & b12) | (b12 & b0);
+            let dark = (d0 & d4) | (d4 & d8) | (d8 & d12) | (d12 & d0);
+            flags[i] = (bright | dark) as u8;
+        }
+        for (i, &f) in flags.iter().enumerate() {
+            if f == 0 {
+                continue;
+            }
+            let rx = i + 3;
             let c = y * stride + x0 + rx;
             let v = data[c] as i32;
-            // Class of a circle pixel: 1 darker than v − t, 2 brighter than v + t, else 0.
-            let cls = |k: usize| -> u8 {
-                let p = data[(c as isize + off[k]) as usize] as i32;
-                if p < v - t {
-                    1
-                } else if p > v + t {
-                    2
-                } else {
-                    0
-                }
-            };
-            // Early rejection on opposite pairs (a 9-arc must contain one of each pair).
-            let mut m = cls(0) | cls(8);
-            if m == 0 {
-                continue;
+            let (hi, lo) = (v + threshold, v - threshold);
+            let (mut bm, mut dm) = (0u32, 0u32);
+            for (k, &o) in off.iter().enumerate() {
+                let p = data[(c as isize + o) as usize] as i32;
+                bm |= ((p > hi) as u32) << k;
+                dm |= ((p < lo) as u32) << k;
             }
-            m &= cls(2) | cls(10);
-            m &= cls(4) | cls(12);
-            m &= cls(6) | cls(14);
-            if m == 0 {
-                continue;
-            }
-            m &= cls(1) | cls(9);
-            m &= cls(3) | cls(11);
-            m &= cls(5) | cls(13);
-            m &= cls(7) | cls(15);
-            if m == 0 {
-                continue;
-            }
-            let mut is_corner = false;
-            for want in [1u8, 2u8] {
-                if m & want == 0 {
-                    continue;
-                }
-                let mut count = 0;
-                for k in 0..16 + ARC - 1 {
-                    if cls(k & 15) == want {
-                        count += 1;
-                        if count >= ARC {
-                            is_corner = true;
-                            break;
-                        }
-                    } else {
-                        count = 0;
-                    }
-                }
-                if is_corner {
-                    break;
-                }
-            }
-            if is_corner {
-                let s = corner_score(data, c, &off, t);
+            if has_arc(bm) || has_arc(dm) {
+                let s = corner_score(data, c, &off, threshold);
                 scratch.scores[ry * rw + rx] = s;
                 scratch.cands.push(Corner {
                     x: rx,

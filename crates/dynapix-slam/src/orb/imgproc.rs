@@ -137,47 +137,39 @@ pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
         return src.clone();
     }
     let k = gaussian_kernel_q8(radius, sigma);
-    let r = radius as isize;
-    // Horizontal pass into u16 (≤ 255·256 fits).
+    let taps = 2 * radius + 1;
+    // Horizontal pass into u16 (≤ 255·256 fits), on a row padded by reflection so the inner
+    // loop has no border logic and vectorises.
     let mut tmp = vec![0u16; w * h];
+    let mut padded = vec![0u8; w + 2 * radius];
     for y in 0..h {
         let row = &src.data[y * w..(y + 1) * w];
+        for (i, p) in padded.iter_mut().enumerate() {
+            *p = row[reflect101(i as isize - radius as isize, w)];
+        }
         let out = &mut tmp[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let xi = x as isize;
-            let mut acc = 0i32;
-            if xi >= r && xi + r < w as isize {
-                let base = x - radius;
-                for (t, &kv) in k.iter().enumerate() {
-                    acc += kv * row[base + t] as i32;
-                }
-            } else {
-                for (t, &kv) in k.iter().enumerate() {
-                    acc += kv * row[reflect101(xi + t as isize - r, w)] as i32;
-                }
+        out.fill(0);
+        for (t, &kv) in k.iter().enumerate() {
+            let kv = kv as u16;
+            for (o, &p) in out.iter_mut().zip(&padded[t..t + w]) {
+                *o += kv * p as u16;
             }
-            *o = acc as u16;
         }
     }
     // Vertical pass, 16 fractional bits, rounded.
     let mut data = vec![0u8; w * h];
-    let rows: Vec<usize> = (0..2 * radius + 1).collect();
+    let mut acc = vec![0u32; w];
     for y in 0..h {
-        let yi = y as isize;
-        let srcs: Vec<&[u16]> = rows
-            .iter()
-            .map(|&t| {
-                let sy = reflect101(yi + t as isize - r, h);
-                &tmp[sy * w..(sy + 1) * w]
-            })
-            .collect();
-        let out = &mut data[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let mut acc = 0u32;
-            for (s, &kv) in srcs.iter().zip(k.iter()) {
-                acc += kv as u32 * s[x] as u32;
+        acc.fill(1 << 15);
+        for (t, &kv) in k.iter().enumerate().take(taps) {
+            let sy = reflect101(y as isize + t as isize - radius as isize, h);
+            let kv = kv as u32;
+            for (a, &v) in acc.iter_mut().zip(&tmp[sy * w..(sy + 1) * w]) {
+                *a += kv * v as u32;
             }
-            *o = ((acc + (1 << 15)) >> 16).min(255) as u8;
+        }
+        for (o, &a) in data[y * w..(y + 1) * w].iter_mut().zip(&acc) {
+            *o = (a >> 16).min(255) as u8;
         }
     }
     Plane { w, h, data }
