@@ -5,6 +5,8 @@
 pub mod atomic;
 pub mod error;
 pub mod images;
+pub mod sequence;
+pub mod settings;
 mod text;
 pub mod trajectory;
 pub mod tum;
@@ -12,5 +14,7 @@ pub mod tum;
 pub use atomic::write_atomic;
 pub use error::{IoError, Result};
 pub use images::{DepthImage, Gray16Image, ProbMap};
+pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions};
+pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};

@@ -13,7 +13,7 @@
 //! - [`WeightMode::Reference`]: residual scaled by `w`, cost `ρ(w²·χ²)`, outlier test on `w²·χ²`.
 
 use crate::problem::{Observation, StereoCamera, WeightMode};
-use nalgebra::{Matrix3, Matrix3x6, Vector3};
+use nalgebra::{Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3};
 
 /// Depths below this are treated as "at the camera centre": the residual is undefined there.
 pub(crate) const MIN_ABS_DEPTH: f64 = 1e-12;
@@ -138,6 +138,29 @@ pub(crate) fn chi2(r: &Vector3<f64>, inv_sigma2: f64) -> f64 {
     inv_sigma2 * r.norm_squared()
 }
 
+/// `a·bᵀ` for two 6×3 blocks, written out because nalgebra's generic small-matrix product is
+/// the bottleneck of the Schur complement.
+#[inline(always)]
+pub(crate) fn mul_abt_6x3(a: &Matrix6x3<f64>, b: &Matrix6x3<f64>) -> Matrix6<f64> {
+    Matrix6::from_fn(|i, j| a[(i, 0)] * b[(j, 0)] + a[(i, 1)] * b[(j, 1)] + a[(i, 2)] * b[(j, 2)])
+}
+
+/// `s·aᵀa` for a 3×6 Jacobian.
+#[inline(always)]
+pub(crate) fn ata_3x6(a: &Matrix3x6<f64>, s: f64) -> Matrix6<f64> {
+    Matrix6::from_fn(|i, j| {
+        s * (a[(0, i)] * a[(0, j)] + a[(1, i)] * a[(1, j)] + a[(2, i)] * a[(2, j)])
+    })
+}
+
+/// `s·aᵀb` for a 3×6 and a 3×3 block.
+#[inline(always)]
+pub(crate) fn atb_3x6_3x3(a: &Matrix3x6<f64>, b: &Matrix3<f64>, s: f64) -> Matrix6x3<f64> {
+    Matrix6x3::from_fn(|i, j| {
+        s * (a[(0, i)] * b[(0, j)] + a[(1, i)] * b[(1, j)] + a[(2, i)] * b[(2, j)])
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -204,6 +227,17 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn small_products_match_nalgebra() {
+        let a = Matrix6x3::from_fn(|i, j| (i * 3 + j) as f64 * 0.37 - 2.0);
+        let b = Matrix6x3::from_fn(|i, j| (i + 5 * j) as f64 * -0.21 + 1.0);
+        assert!((mul_abt_6x3(&a, &b) - a * b.transpose()).norm() < 1e-12);
+        let j = Matrix3x6::from_fn(|i, k| (i * 6 + k) as f64 * 0.13 - 1.0);
+        let m = Matrix3::from_fn(|i, k| (i + 2 * k) as f64 * 0.3 - 0.5);
+        assert!((ata_3x6(&j, 2.0) - 2.0 * j.transpose() * j).norm() < 1e-12);
+        assert!((atb_3x6_3x3(&j, &m, 2.0) - 2.0 * j.transpose() * m).norm() < 1e-12);
     }
 
     #[test]

@@ -5,12 +5,13 @@
 //! round restarts from the initial guess (as ORB-SLAM2 does, which re-sets the vertex estimate
 //! from `Frame::mTcw` each round) and uses only the edges classified as inliers by the previous
 //! round; the Huber kernel (δ = √χ²-threshold of the edge type) is on for the first
-//! `robust_rounds` rounds. After each round every edge is classified again at the new pose.
+//! `robust_rounds` rounds. After each round every edge is classified again at the new pose;
+//! problems with fewer than `min_edges_for_rounds` edges stop after the first round.
 
 use crate::edge::{self, Weighted};
 use crate::problem::{PoseOnlyParams, PoseOnlyProblem, PoseOnlyResult, StereoCamera, WeightMode};
 use dynapix_geometry::{Se3, se3};
-use nalgebra::{Matrix6, Point3, Vector3, Vector6};
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 /// Minimum number of edges for the optimisation to run (ORB-SLAM2: `nInitialCorrespondences < 3`).
 const MIN_EDGES: usize = 3;
@@ -84,8 +85,12 @@ pub fn optimize_pose(problem: &PoseOnlyProblem, params: &PoseOnlyParams) -> Pose
             params.iterations,
             problem.pose,
         );
+        let rt = to_rt(&pose);
         for (k, e) in edges.iter().enumerate() {
-            active[k] = classify(problem, params.weight_mode, e, &pose);
+            active[k] = classify(problem, params.weight_mode, e, &rt);
+        }
+        if edges.len() < params.min_edges_for_rounds {
+            break;
         }
     }
     let mut num_inliers = 0;
@@ -100,20 +105,30 @@ pub fn optimize_pose(problem: &PoseOnlyProblem, params: &PoseOnlyParams) -> Pose
     }
 }
 
+/// A pose as rotation matrix and translation (cheaper to apply than a quaternion).
+type Rt = (Matrix3<f64>, Vector3<f64>);
+
+fn to_rt(t: &Se3) -> Rt {
+    (
+        *t.rotation.to_rotation_matrix().matrix(),
+        t.translation.vector,
+    )
+}
+
 /// Camera-frame point and residual of edge `e` at `pose`.
 #[inline]
 fn eval(
     problem: &PoseOnlyProblem,
     e: &PoseEdge,
-    pose: &Se3,
+    pose: &Rt,
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let xc = (pose * Point3::from(problem.points[e.idx])).coords;
+    let xc = pose.0 * problem.points[e.idx] + pose.1;
     let r = edge::residual(&problem.camera, &xc, &problem.observations[e.idx])?;
     Some((xc, r))
 }
 
 /// Inlier test: in front of the camera and χ² (weighted per mode) within the threshold.
-fn classify(problem: &PoseOnlyProblem, mode: WeightMode, e: &PoseEdge, pose: &Se3) -> bool {
+fn classify(problem: &PoseOnlyProblem, mode: WeightMode, e: &PoseEdge, pose: &Rt) -> bool {
     let obs = &problem.observations[e.idx];
     match eval(problem, e, pose) {
         Some((xc, r)) if xc.z > 0.0 => {
@@ -131,7 +146,7 @@ fn edge_cost(
     mode: WeightMode,
     e: &PoseEdge,
     robust: bool,
-    pose: &Se3,
+    pose: &Rt,
 ) -> Option<(Vector3<f64>, Vector3<f64>, Weighted)> {
     let obs = &problem.observations[e.idx];
     let (xc, r) = eval(problem, e, pose)?;
@@ -151,7 +166,7 @@ fn total_cost(
     edges: &[PoseEdge],
     active: &[bool],
     robust: bool,
-    pose: &Se3,
+    pose: &Rt,
 ) -> f64 {
     edges
         .iter()
@@ -170,7 +185,7 @@ fn linearize(
     edges: &[PoseEdge],
     active: &[bool],
     robust: bool,
-    pose: &Se3,
+    pose: &Rt,
 ) -> (Matrix6<f64>, Vector6<f64>, f64) {
     let mut h = Matrix6::zeros();
     let mut g = Vector6::zeros();
@@ -183,9 +198,8 @@ fn linearize(
         let jpi = edge::projection_jacobian(cam, &xc, e.stereo);
         let j = edge::pose_jacobian(&jpi, &xc);
         let s = w.irls * problem.observations[e.idx].inv_sigma2;
-        let jt = j.transpose();
-        h += s * (jt * j);
-        g += s * (jt * r);
+        h += edge::ata_3x6(&j, s);
+        g += s * (j.transpose() * r);
     }
     (h, g, cost)
 }
@@ -206,7 +220,7 @@ fn lm(
     let mut lambda = 0.0;
     let mut nu = 2.0;
     for it in 0..iterations {
-        let (h, g, cost) = linearize(&cam, problem, mode, edges, active, robust, &pose);
+        let (h, g, cost) = linearize(&cam, problem, mode, edges, active, robust, &to_rt(&pose));
         if it == 0 {
             let max_diag = (0..6).map(|k| h[(k, k)]).fold(0.0, f64::max);
             lambda = LM_TAU * max_diag;
@@ -223,7 +237,7 @@ fn lm(
             let step = damped.cholesky().map(|c| c.solve(&(-g)));
             if let Some(delta) = step.filter(|d| d.iter().all(|v| v.is_finite())) {
                 let candidate = se3::exp(&delta) * pose;
-                let new_cost = total_cost(problem, mode, edges, active, robust, &candidate);
+                let new_cost = total_cost(problem, mode, edges, active, robust, &to_rt(&candidate));
                 // Both costs are 2F; the predicted decrease of F is ½δᵀ(λδ − g).
                 let predicted = delta.dot(&(lambda * delta - g));
                 let gain = (cost - new_cost) / predicted;
@@ -250,7 +264,7 @@ fn lm(
 mod tests {
     use super::*;
     use crate::problem::Observation;
-    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -376,6 +390,27 @@ mod tests {
         let res = optimize_pose(&p, &params);
         assert_ne!(res.pose, p.pose, "3 stereo edges must be optimised");
         assert_eq!(res.num_inliers, 3);
+    }
+
+    #[test]
+    fn small_problems_stop_after_one_round() {
+        let mut p = scene(9, 8, 1.0, 0);
+        p.observations[3].uv[0] += 6.0;
+        let one_round = PoseOnlyParams {
+            rounds: 1,
+            min_edges_for_rounds: 0,
+            ..PoseOnlyParams::default()
+        };
+        let all_rounds = PoseOnlyParams {
+            min_edges_for_rounds: 0,
+            ..PoseOnlyParams::default()
+        };
+        let a = optimize_pose(&p, &PoseOnlyParams::default());
+        let b = optimize_pose(&p, &one_round);
+        let c = optimize_pose(&p, &all_rounds);
+        assert_eq!(a.pose, b.pose);
+        assert_eq!(a.inlier, b.inlier);
+        assert_ne!(a.pose, c.pose, "four rounds must differ from one here");
     }
 
     #[test]

@@ -1,0 +1,676 @@
+//! One `Sequence` type over the three folder layouts dynapix reads (spec §5, design.md §1):
+//!
+//! - **TUM RGB-D**: `rgb.txt` + `depth.txt` (associated like `associate.py`, 0.02 s) or a
+//!   4-column association file, images under `rgb/` and `depth/`, `groundtruth.txt`.
+//! - **DynaPix**: the same lists plus optional per-frame folders `background/` (static
+//!   background), `depth_bg/` (its depth), `prob/` (motion probability, reference PNG or
+//!   lossless PFM) and `mask/` (8-bit, non-zero = dynamic), each file named like the rgb image
+//!   (`depth_bg/` like the depth image, falling back to the rgb name).
+//! - **GRADE**: numbered frames `rgb/1.png … rgb/N.png`, `depth/i.png` in millimetres,
+//!   `background/`, `depth_bg/`; frame i at t = (i − 1)/30 s unless an association file gives
+//!   the times.
+//!
+//! Opening reads only the text files and checks which optional files exist; images are loaded
+//! per frame by [`Sequence::load_frame`], which takes `&self` and holds no lock, so frames can
+//! be loaded from rayon in parallel.
+
+use std::path::{Path, PathBuf};
+
+use dynapix_geometry::Se3;
+use image::{GrayImage, RgbImage};
+
+use crate::error::{IoError, Result};
+use crate::images::{self, DepthImage, ProbMap};
+use crate::settings::{SEQUENCE_SETTINGS_FILE, Settings};
+use crate::trajectory::{DEFAULT_MAX_GAP, Trajectory};
+use crate::tum::{self, DEFAULT_MAX_DIFF};
+
+/// Association file names looked for, in this order (TUM tools, DynaSLAM, DynaPix, GRADE).
+pub const ASSOCIATION_FILES: [&str; 4] = [
+    "association.txt",
+    "associations.txt",
+    "rgbd_assoc.txt",
+    "assoc.txt",
+];
+
+/// Frame rate of GRADE sequences, which gives t = (i − 1)/30 for frame i.
+pub const GRADE_FPS: f64 = 30.0;
+
+/// Depth units per metre when neither `camera.yaml` nor the folder name tells it: TUM
+/// (0.2 mm units).
+pub const TUM_DEPTH_FACTOR: f64 = 5000.0;
+
+/// Depth units per metre of GRADE (millimetres).
+pub const GRADE_DEPTH_FACTOR: f64 = 1000.0;
+
+/// The folder layout a sequence was recognised as.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// TUM RGB-D: lists or association file, no per-frame extra folders.
+    Tum,
+    /// DynaPix: TUM-style lists plus `background/`, `depth_bg/`, `prob/` or `mask/`.
+    DynaPix,
+    /// GRADE: frames numbered `rgb/1.png …` (depth in mm by default).
+    Grade,
+}
+
+/// Options of [`Sequence::open_with`]; `Default` gives the reference values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SequenceOptions {
+    /// Depth units per metre; `None` = from the sequence settings (`camera.yaml`, folder
+    /// name), else 1000 for GRADE and 5000 otherwise.
+    pub depth_factor: Option<f64>,
+    /// Maximal rgb/depth time difference when associating `rgb.txt` and `depth.txt` (0.02 s).
+    pub max_diff: f64,
+    /// Maximal gap between two ground-truth poses to interpolate between them (0.05 s).
+    pub gt_max_gap: f64,
+}
+
+impl Default for SequenceOptions {
+    fn default() -> Self {
+        Self {
+            depth_factor: None,
+            max_diff: DEFAULT_MAX_DIFF,
+            gt_max_gap: DEFAULT_MAX_GAP,
+        }
+    }
+}
+
+/// Where the files of one frame are (paths resolved against the sequence folder).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameInfo {
+    /// Frame time in seconds (the rgb timestamp).
+    pub t: f64,
+    /// Timestamp of the associated depth image.
+    pub t_depth: f64,
+    /// Colour image.
+    pub rgb: PathBuf,
+    /// Depth image (16-bit).
+    pub depth: PathBuf,
+    /// Static-background colour image, if present.
+    pub background: Option<PathBuf>,
+    /// Static-background depth image, if present.
+    pub depth_bg: Option<PathBuf>,
+    /// Motion mask (8-bit, non-zero = dynamic), if present.
+    pub mask: Option<PathBuf>,
+    /// Motion probability map (`.pfm` preferred over the reference `.png`), if present.
+    pub prob: Option<PathBuf>,
+}
+
+/// Everything loaded for one frame.
+#[derive(Clone, Debug)]
+pub struct FrameData {
+    /// Index of the frame in the sequence (0-based).
+    pub index: usize,
+    /// Frame time in seconds.
+    pub t: f64,
+    /// Colour image.
+    pub rgb: RgbImage,
+    /// Depth in metres (0 = no depth).
+    pub depth: DepthImage,
+    /// Static-background colour image.
+    pub background: Option<RgbImage>,
+    /// Static-background depth in metres.
+    pub depth_bg: Option<DepthImage>,
+    /// Motion mask, non-zero = dynamic.
+    pub mask: Option<GrayImage>,
+    /// Motion probability P ∈ [0, 1].
+    pub prob: Option<ProbMap>,
+    /// Ground-truth camera-to-world pose, SLERP-interpolated at `t`; `None` without ground
+    /// truth or when the two surrounding ground-truth poses are too far apart.
+    pub gt_pose: Option<Se3>,
+}
+
+/// A dataset sequence on disk: frame list, optional ground truth, camera settings.
+#[derive(Clone, Debug)]
+pub struct Sequence {
+    /// The sequence folder.
+    pub dir: PathBuf,
+    /// The recognised layout.
+    pub layout: Layout,
+    /// The frames in time order.
+    pub frames: Vec<FrameInfo>,
+    /// `groundtruth.txt`, when present.
+    pub groundtruth: Option<Trajectory>,
+    /// Camera settings from `camera.yaml`, the folder name (`rgbd_dataset_freiburgN_*`) or
+    /// the GRADE layout; `None` when they cannot be told (see [`Sequence::settings`]).
+    pub settings: Option<Settings>,
+    /// Depth units per metre used by [`Sequence::load_frame`].
+    pub depth_factor: f64,
+    /// Maximal ground-truth gap for interpolation (s).
+    pub gt_max_gap: f64,
+}
+
+/// `dir/<sub>/<name>` if that file exists.
+fn existing(dir: &Path, sub: &str, name: Option<&std::ffi::OsStr>) -> Option<PathBuf> {
+    let p = dir.join(sub).join(name?);
+    p.is_file().then_some(p)
+}
+
+/// True when the file stem is a decimal frame number (GRADE naming).
+fn is_numbered(path: &Path) -> bool {
+    path.file_stem()
+        .and_then(|s| s.to_str())
+        .is_some_and(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
+}
+
+impl Sequence {
+    /// Opens a sequence folder with default options (see [`Sequence::open_with`]).
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
+        Self::open_with(dir, &SequenceOptions::default())
+    }
+
+    /// Opens a sequence folder: finds the frame list (association file, else `rgb.txt` +
+    /// `depth.txt`, else numbered `rgb/1.png …`), the optional per-frame files, the ground
+    /// truth and the settings.
+    pub fn open_with(dir: impl AsRef<Path>, opts: &SequenceOptions) -> Result<Self> {
+        let dir = dir.as_ref().to_path_buf();
+        if !dir.is_dir() {
+            return Err(IoError::invalid(&dir, "not a folder"));
+        }
+        let pairs = Self::frame_list(&dir, opts)?;
+        if pairs.is_empty() {
+            return Err(IoError::invalid(&dir, "the sequence has no frames"));
+        }
+        let numbered = pairs.iter().all(|a| is_numbered(Path::new(&a.rgb)));
+        let has = |sub: &str| dir.join(sub).is_dir();
+        let (has_bg, has_dbg, has_prob, has_mask) =
+            (has("background"), has("depth_bg"), has("prob"), has("mask"));
+        let layout = if numbered {
+            Layout::Grade
+        } else if has_bg || has_dbg || has_prob || has_mask {
+            Layout::DynaPix
+        } else {
+            Layout::Tum
+        };
+        let frames = pairs
+            .iter()
+            .map(|a| {
+                let rgb = tum::resolve_path(&dir, &a.rgb);
+                let depth = tum::resolve_path(&dir, &a.depth);
+                let rgb_name = rgb.file_name();
+                let prob = if has_prob {
+                    let pfm = images::prob_pfm_path(&dir, &rgb);
+                    let png = images::prob_png_path(&dir, &rgb);
+                    [pfm, png].into_iter().find(|p| p.is_file())
+                } else {
+                    None
+                };
+                FrameInfo {
+                    t: a.t_rgb,
+                    t_depth: a.t_depth,
+                    background: has_bg
+                        .then(|| existing(&dir, "background", rgb_name))
+                        .flatten(),
+                    depth_bg: has_dbg
+                        .then(|| {
+                            existing(&dir, "depth_bg", depth.file_name())
+                                .or_else(|| existing(&dir, "depth_bg", rgb_name))
+                        })
+                        .flatten(),
+                    mask: has_mask.then(|| existing(&dir, "mask", rgb_name)).flatten(),
+                    prob,
+                    rgb,
+                    depth,
+                }
+            })
+            .collect();
+        let gt_path = dir.join("groundtruth.txt");
+        let groundtruth = if gt_path.is_file() {
+            Some(Trajectory::read_tum(&gt_path)?)
+        } else {
+            None
+        };
+        let settings = match Settings::for_sequence_dir(&dir) {
+            Ok(s) => Some(s),
+            // A broken camera.yaml must be reported, not replaced by a guess.
+            Err(e) if dir.join(SEQUENCE_SETTINGS_FILE).is_file() => return Err(e),
+            Err(_) if layout == Layout::Grade => Some(Settings::grade()),
+            Err(_) => None,
+        };
+        let depth_factor = match (opts.depth_factor, &settings) {
+            (Some(f), _) => f,
+            (None, Some(s)) => s.depth_map_factor,
+            (None, None) => TUM_DEPTH_FACTOR,
+        };
+        if !(depth_factor.is_finite() && depth_factor > 0.0) {
+            return Err(IoError::invalid(
+                &dir,
+                format!("depth factor must be positive, got {depth_factor}"),
+            ));
+        }
+        Ok(Self {
+            dir,
+            layout,
+            frames,
+            groundtruth,
+            settings,
+            depth_factor,
+            gt_max_gap: opts.gt_max_gap,
+        })
+    }
+
+    /// The rgb/depth pairs of the folder, as written (paths not yet resolved).
+    fn frame_list(dir: &Path, opts: &SequenceOptions) -> Result<Vec<tum::Association>> {
+        if let Some(f) = ASSOCIATION_FILES
+            .iter()
+            .map(|n| dir.join(n))
+            .find(|p| p.is_file())
+        {
+            return tum::read_associations(f);
+        }
+        let (rgb_txt, depth_txt) = (dir.join("rgb.txt"), dir.join("depth.txt"));
+        if rgb_txt.is_file() || depth_txt.is_file() {
+            let rgb = tum::read_list(&rgb_txt)?;
+            let depth = tum::read_list(&depth_txt)?;
+            return Ok(tum::associate_lists(&rgb, &depth, 0.0, opts.max_diff));
+        }
+        if dir.join("rgb").join("1.png").is_file() {
+            let mut out = Vec::new();
+            for i in 1usize.. {
+                let rgb = format!("rgb/{i}.png");
+                if !dir.join(&rgb).is_file() {
+                    break;
+                }
+                let depth = format!("depth/{i}.png");
+                if !dir.join(&depth).is_file() {
+                    return Err(IoError::invalid(
+                        dir.join(&depth),
+                        format!("missing: {rgb} exists but its depth image does not"),
+                    ));
+                }
+                let t = (i - 1) as f64 / GRADE_FPS;
+                out.push(tum::Association {
+                    t_rgb: t,
+                    rgb,
+                    t_depth: t,
+                    depth,
+                });
+            }
+            return Ok(out);
+        }
+        Err(IoError::invalid(
+            dir,
+            format!(
+                "no frame list: expected one of {}, rgb.txt + depth.txt, or numbered rgb/1.png …",
+                ASSOCIATION_FILES.join(", ")
+            ),
+        ))
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// True when the sequence has no frame (never the case after a successful open).
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Frame times in seconds.
+    pub fn timestamps(&self) -> Vec<f64> {
+        self.frames.iter().map(|f| f.t).collect()
+    }
+
+    /// The camera settings, or the "cannot tell the camera" error of
+    /// [`Settings::for_sequence_dir`].
+    pub fn settings(&self) -> Result<&Settings> {
+        match &self.settings {
+            Some(s) => Ok(s),
+            None => Err(Settings::for_sequence_dir(&self.dir)
+                .err()
+                .unwrap_or_else(|| IoError::invalid(&self.dir, "cannot tell the camera"))),
+        }
+    }
+
+    /// Ground-truth pose (camera-to-world) at time `t`, SLERP-interpolated.
+    pub fn gt_pose_at(&self, t: f64) -> Option<Se3> {
+        self.groundtruth.as_ref()?.interpolate(t, self.gt_max_gap)
+    }
+
+    /// Where the reference probability PNG of frame `i` goes: `prob/<rgb file name>`.
+    pub fn prob_png_path(&self, i: usize) -> Option<PathBuf> {
+        Some(images::prob_png_path(&self.dir, &self.frames.get(i)?.rgb))
+    }
+
+    /// Where the lossless probability map of frame `i` goes: `prob/<rgb stem>.pfm`.
+    pub fn prob_pfm_path(&self, i: usize) -> Option<PathBuf> {
+        Some(images::prob_pfm_path(&self.dir, &self.frames.get(i)?.rgb))
+    }
+
+    /// Loads frame `i`: images (depth in metres), optional maps and the interpolated
+    /// ground-truth pose. Every image must have the rgb image's size.
+    pub fn load_frame(&self, i: usize) -> Result<FrameData> {
+        let info = self.frames.get(i).ok_or_else(|| {
+            IoError::invalid(
+                &self.dir,
+                format!(
+                    "frame {i} out of range (sequence has {})",
+                    self.frames.len()
+                ),
+            )
+        })?;
+        let rgb = images::read_rgb(&info.rgb)?;
+        let size = rgb.dimensions();
+        let same = |p: &Path, s: (u32, u32)| images::check_same_size(p, s, &info.rgb, size);
+        let depth = images::read_depth(&info.depth, self.depth_factor)?;
+        same(&info.depth, depth.dimensions())?;
+        let background = match &info.background {
+            Some(p) => {
+                let img = images::read_rgb(p)?;
+                same(p, img.dimensions())?;
+                Some(img)
+            }
+            None => None,
+        };
+        let depth_bg = match &info.depth_bg {
+            Some(p) => {
+                let img = images::read_depth(p, self.depth_factor)?;
+                same(p, img.dimensions())?;
+                Some(img)
+            }
+            None => None,
+        };
+        let mask = match &info.mask {
+            Some(p) => {
+                let img = images::read_mask(p)?;
+                same(p, img.dimensions())?;
+                Some(img)
+            }
+            None => None,
+        };
+        let prob = match &info.prob {
+            Some(p) => {
+                let img = if p.extension().is_some_and(|e| e == "pfm") {
+                    images::read_prob_pfm(p)?
+                } else {
+                    images::read_prob_png(p)?
+                };
+                same(p, img.dimensions())?;
+                Some(img)
+            }
+            None => None,
+        };
+        Ok(FrameData {
+            index: i,
+            t: info.t,
+            rgb,
+            depth,
+            background,
+            depth_bg,
+            mask,
+            prob,
+            gt_pose: self.gt_pose_at(info.t),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trajectory::StampedPose;
+    use crate::tum::Association;
+    use image::{Luma, Rgb};
+    use nalgebra::Vector3;
+
+    fn data_dir() -> Option<PathBuf> {
+        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
+        if d.is_dir() {
+            Some(d)
+        } else {
+            eprintln!("skipped: {} not found", d.display());
+            None
+        }
+    }
+
+    #[test]
+    fn sequence_is_shareable_across_threads() {
+        fn assert_sync<T: Send + Sync>() {}
+        assert_sync::<Sequence>();
+        assert_sync::<FrameData>();
+    }
+
+    fn mkdirs(dir: &Path, subs: &[&str]) {
+        for s in subs {
+            std::fs::create_dir_all(dir.join(s)).unwrap();
+        }
+    }
+
+    /// A 3-frame DynaPix-layout sequence with every optional folder (frame 1 has no mask).
+    fn write_dynapix(dir: &Path) {
+        mkdirs(
+            dir,
+            &["rgb", "depth", "background", "depth_bg", "prob", "mask"],
+        );
+        let mut assoc = Vec::new();
+        let mut gt = Vec::new();
+        for k in 0..3 {
+            let t = 100.0 + k as f64 * 0.5;
+            let (rn, dn) = (format!("{t:.6}.png"), format!("{:.6}.png", t + 0.01));
+            let rgb = RgbImage::from_pixel(8, 6, Rgb([k as u8, 2, 3]));
+            images::write_rgb(dir.join("rgb").join(&rn), &rgb).unwrap();
+            images::write_rgb(dir.join("background").join(&rn), &rgb).unwrap();
+            let d = DepthImage::from_pixel(8, 6, Luma([1.0 + k as f32]));
+            images::write_depth(dir.join("depth").join(&dn), &d, 5000.0).unwrap();
+            images::write_depth(dir.join("depth_bg").join(&dn), &d, 5000.0).unwrap();
+            if k != 1 {
+                images::write_mask(dir.join("mask").join(&rn), &GrayImage::new(8, 6)).unwrap();
+            }
+            let p = ProbMap::from_pixel(8, 6, Luma([0.25 * k as f32]));
+            if k == 2 {
+                images::write_prob_pfm(images::prob_pfm_path(dir, Path::new(&rn)), &p).unwrap();
+            } else {
+                images::write_prob_png(images::prob_png_path(dir, Path::new(&rn)), &p).unwrap();
+            }
+            assoc.push(Association {
+                t_rgb: t,
+                rgb: format!("rgb/{rn}"),
+                t_depth: t + 0.01,
+                depth: format!("depth/{dn}"),
+            });
+        }
+        // Ground truth every 0.04 s from 100.0 to 100.6 along x at 1 m/s, except a gap
+        // around 101.0 so the last frame has none.
+        for k in 0..=15 {
+            let t = 100.0 + k as f64 * 0.04;
+            gt.push(StampedPose::new(t, Se3::translation(t - 100.0, 0.0, 0.0)));
+        }
+        gt.push(StampedPose::new(101.5, Se3::identity()));
+        tum::write_associations(dir.join("association.txt"), &assoc).unwrap();
+        Trajectory::new(gt)
+            .write_tum(dir.join("groundtruth.txt"))
+            .unwrap();
+    }
+
+    #[test]
+    fn dynapix_layout_loads_every_map() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        write_dynapix(dir);
+        let seq = Sequence::open(dir).unwrap();
+        assert_eq!(seq.layout, Layout::DynaPix);
+        assert_eq!(seq.len(), 3);
+        assert_eq!(seq.depth_factor, TUM_DEPTH_FACTOR);
+        assert!(
+            seq.settings().is_err(),
+            "no camera.yaml and no TUM folder name"
+        );
+        assert!(seq.frames[1].mask.is_none());
+        assert!(
+            seq.frames[2]
+                .prob
+                .as_ref()
+                .unwrap()
+                .ends_with("prob/101.000000.pfm")
+        );
+        let f = seq.load_frame(1).unwrap();
+        assert_eq!(f.t, 100.5);
+        assert_eq!(f.rgb.get_pixel(0, 0)[0], 1);
+        assert_eq!(f.depth.get_pixel(3, 3)[0], 2.0);
+        assert_eq!(f.depth_bg.unwrap().get_pixel(0, 0)[0], 2.0);
+        assert!(f.background.is_some() && f.mask.is_none());
+        assert!((f.prob.unwrap().get_pixel(0, 0)[0] - 0.25).abs() < 1e-6);
+        let gt = f.gt_pose.unwrap();
+        assert!((gt.translation.vector - Vector3::new(0.5, 0.0, 0.0)).norm() < 1e-9);
+        let last = seq.load_frame(2).unwrap();
+        assert_eq!(last.prob.unwrap().get_pixel(0, 0)[0], 0.5);
+        assert!(
+            last.gt_pose.is_none(),
+            "GT gap 100.6 → 101.5 exceeds 0.05 s"
+        );
+        let e = seq.load_frame(3).unwrap_err().to_string();
+        assert!(e.contains("out of range"), "{e}");
+        assert_eq!(
+            seq.prob_png_path(0).unwrap(),
+            dir.join("prob").join("100.000000.png")
+        );
+    }
+
+    #[test]
+    fn frames_load_in_parallel_with_the_same_result() {
+        use rayon::prelude::*;
+        let tmp = tempfile::tempdir().unwrap();
+        write_dynapix(tmp.path());
+        let seq = Sequence::open(tmp.path()).unwrap();
+        let par: Vec<FrameData> = (0..seq.len())
+            .into_par_iter()
+            .map(|i| seq.load_frame(i).unwrap())
+            .collect();
+        for (i, f) in par.iter().enumerate() {
+            let s = seq.load_frame(i).unwrap();
+            assert_eq!((f.index, f.t), (i, s.t));
+            assert_eq!(f.depth, s.depth);
+        }
+    }
+
+    #[test]
+    fn size_mismatch_and_missing_files_name_the_files() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        write_dynapix(dir);
+        let bad_bg = dir.join("background/100.500000.png");
+        images::write_rgb(&bad_bg, &RgbImage::new(4, 4)).unwrap();
+        let seq = Sequence::open(dir).unwrap();
+        let e = seq.load_frame(1).unwrap_err().to_string();
+        assert!(
+            e.contains("background/100.500000.png") && e.contains("rgb/100.500000.png"),
+            "{e}"
+        );
+        std::fs::remove_file(dir.join("depth/100.010000.png")).unwrap();
+        let e = seq.load_frame(0).unwrap_err();
+        assert!(matches!(e, IoError::Io { .. }) && e.to_string().contains("depth/100.010000.png"));
+        // Broken ground truth or camera.yaml stops the opening with file and line.
+        std::fs::write(dir.join("groundtruth.txt"), "1 2 3\n").unwrap();
+        let e = Sequence::open(dir).unwrap_err().to_string();
+        assert!(e.contains("groundtruth.txt:1"), "{e}");
+        std::fs::remove_file(dir.join("groundtruth.txt")).unwrap();
+        std::fs::write(dir.join("camera.yaml"), "%YAML:1.0\nCamera.fx: 1\n").unwrap();
+        let e = Sequence::open(dir).unwrap_err().to_string();
+        assert!(e.contains("camera.yaml"), "{e}");
+        let empty = tempfile::tempdir().unwrap();
+        let e = Sequence::open(empty.path()).unwrap_err().to_string();
+        assert!(e.contains("no frame list"), "{e}");
+        assert!(Sequence::open(empty.path().join("nope")).is_err());
+    }
+
+    #[test]
+    fn grade_numbered_layout() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        mkdirs(dir, &["rgb", "depth", "depth_bg"]);
+        for i in 1..=4 {
+            images::write_rgb(dir.join(format!("rgb/{i}.png")), &RgbImage::new(5, 4)).unwrap();
+            let mm = crate::images::Gray16Image::from_pixel(5, 4, Luma([1500 + i as u16]));
+            images::write_gray16(dir.join(format!("depth/{i}.png")), &mm).unwrap();
+        }
+        images::write_gray16(
+            dir.join("depth_bg/2.png"),
+            &crate::images::Gray16Image::from_pixel(5, 4, Luma([3000])),
+        )
+        .unwrap();
+        let seq = Sequence::open(dir).unwrap();
+        assert_eq!(seq.layout, Layout::Grade);
+        assert_eq!(seq.len(), 4);
+        assert_eq!(
+            seq.timestamps(),
+            vec![0.0, 1.0 / 30.0, 2.0 / 30.0, 3.0 / 30.0]
+        );
+        assert_eq!(seq.depth_factor, GRADE_DEPTH_FACTOR);
+        assert_eq!(seq.settings().unwrap(), &Settings::grade());
+        let f = seq.load_frame(1).unwrap();
+        assert!((f.depth.get_pixel(0, 0)[0] - 1.502).abs() < 1e-6);
+        assert!((f.depth_bg.unwrap().get_pixel(0, 0)[0] - 3.0).abs() < 1e-6);
+        assert!(f.gt_pose.is_none());
+        // A GRADE association with leading slashes gives the times instead.
+        std::fs::write(
+            dir.join("rgbd_assoc.txt"),
+            "0.5 /rgb/1.png 0.5 /depth/1.png\n0.6 /rgb/2.png 0.6 /depth/2.png\n",
+        )
+        .unwrap();
+        let seq = Sequence::open(dir).unwrap();
+        assert_eq!((seq.layout, seq.len()), (Layout::Grade, 2));
+        assert_eq!(seq.load_frame(1).unwrap().t, 0.6);
+        // A numbered frame without depth is an error naming the depth file.
+        std::fs::remove_file(dir.join("rgbd_assoc.txt")).unwrap();
+        std::fs::remove_file(dir.join("depth/3.png")).unwrap();
+        let e = Sequence::open(dir).unwrap_err().to_string();
+        assert!(e.contains("depth/3.png"), "{e}");
+        // An explicit depth factor wins.
+        std::fs::remove_file(dir.join("rgb/3.png")).unwrap();
+        let opts = SequenceOptions {
+            depth_factor: Some(5000.0),
+            ..Default::default()
+        };
+        assert_eq!(
+            Sequence::open_with(dir, &opts).unwrap().depth_factor,
+            5000.0
+        );
+        assert_eq!(Sequence::open(dir).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn real_fr1_xyz_sequence() {
+        let Some(d) = data_dir() else { return };
+        let dir = d.join("tum/rgbd_dataset_freiburg1_xyz");
+        let seq = Sequence::open(&dir).unwrap();
+        assert_eq!(seq.layout, Layout::Tum);
+        // 300 rgb and 300 depth frames; associate.py (run on the same lists) pairs 294.
+        assert_eq!(seq.len(), 294);
+        assert_eq!(seq.settings().unwrap(), &Settings::tum1());
+        assert_eq!(seq.depth_factor, 5000.0);
+        assert_eq!(seq.groundtruth.as_ref().unwrap().len(), 3000);
+        assert!(seq.frames.windows(2).all(|w| w[0].t < w[1].t));
+        assert!(seq.frames.iter().all(|f| (f.t - f.t_depth).abs() < 0.02));
+        let f = seq.load_frame(0).unwrap();
+        assert_eq!(format!("{:.6}", f.t), "1305031102.175304");
+        assert_eq!(f.rgb.dimensions(), (640, 480));
+        assert_eq!(f.depth.dimensions(), (640, 480));
+        let valid: Vec<f32> = f
+            .depth
+            .pixels()
+            .map(|p| p[0])
+            .filter(|&v| v > 0.0)
+            .collect();
+        let max = valid.iter().cloned().fold(0.0f32, f32::max);
+        let min = valid.iter().cloned().fold(f32::INFINITY, f32::min);
+        assert!(
+            min > 0.3 && max < 10.0 && valid.len() > 100_000,
+            "{min} {max} {}",
+            valid.len()
+        );
+        assert!(f.background.is_none() && f.prob.is_none() && f.mask.is_none());
+        // GT at 100 Hz: the interpolated pose lies between its two neighbours.
+        let gt = seq.groundtruth.as_ref().unwrap();
+        let k = gt.poses.partition_point(|p| p.t <= f.t);
+        let (a, b) = (&gt.poses[k - 1], &gt.poses[k]);
+        let pose = f.gt_pose.unwrap();
+        let s = (f.t - a.t) / (b.t - a.t);
+        let expect = a.pose.translation.vector * (1.0 - s) + b.pose.translation.vector * s;
+        assert!((pose.translation.vector - expect).norm() < 1e-12);
+        assert!(
+            pose.rotation.angle_to(&a.pose.rotation)
+                <= a.pose.rotation.angle_to(&b.pose.rotation) + 1e-12
+        );
+    }
+}

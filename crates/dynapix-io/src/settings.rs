@@ -1,0 +1,747 @@
+//! ORB-SLAM2 settings files (`TUM1.yaml`, `TUM3.yaml`, `GRADE.yaml`, a sequence's
+//! `camera.yaml`; spec §2.8, §5.1, §5.2) and the built-in camera presets `tum1 tum2 tum3 grade`.
+//!
+//! The files are OpenCV YAML: a `%YAML:1.0` first line and flat keys with dots
+//! (`Camera.fx: 535.4`). They are parsed with `serde-saphyr` after two OpenCV tolerances are
+//! applied line by line (numbering kept): the `%YAML` line is blanked, and `key:value` without
+//! a space (upstream `TUM3.yaml` has `Viewer.PointSize:2`) gets its space. A repeated key keeps
+//! the later value (upstream `TUM3.yaml` repeats `Camera.width`). Unknown keys (viewer, …) are
+//! ignored. `Camera.k3` is optional (0), as are `Camera.width`/`Camera.height` (ORB-SLAM2
+//! ignores them; 640×480, the TUM and GRADE image size, when absent). Every value is
+//! validated; errors name the file and the line of the offending key.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use dynapix_geometry::PinholeCamera;
+use serde::Deserialize;
+
+use crate::atomic::write_atomic;
+use crate::error::{IoError, Result};
+use crate::images::Gray16Image;
+use crate::text::read_text;
+
+/// Names of the built-in presets, for CLI help and error messages.
+pub const PRESET_NAMES: [&str; 4] = ["tum1", "tum2", "tum3", "grade"];
+
+/// File name of the per-sequence settings that every command uses when present.
+pub const SEQUENCE_SETTINGS_FILE: &str = "camera.yaml";
+
+/// Image size assumed when a settings file has no `Camera.width`/`Camera.height`.
+const DEFAULT_SIZE: (u32, u32) = (640, 480);
+
+/// ORB extractor parameters (`ORBextractor.*`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OrbSettings {
+    /// `ORBextractor.nFeatures`: features per image (TUM 1000, GRADE 3000).
+    pub n_features: usize,
+    /// `ORBextractor.scaleFactor`: scale between pyramid levels (1.2).
+    pub scale_factor: f64,
+    /// `ORBextractor.nLevels`: pyramid levels (8).
+    pub n_levels: usize,
+    /// `ORBextractor.iniThFAST`: initial FAST threshold (20).
+    pub ini_th_fast: u32,
+    /// `ORBextractor.minThFAST`: fallback FAST threshold for low-contrast cells (7).
+    pub min_th_fast: u32,
+}
+
+impl Default for OrbSettings {
+    /// The ORB-SLAM2 TUM values: 1000 features, 1.2, 8 levels, FAST 20/7.
+    fn default() -> Self {
+        Self {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
+    }
+}
+
+/// The content of an ORB-SLAM2 RGB-D settings file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    /// `Camera.fx`, pixels.
+    pub fx: f64,
+    /// `Camera.fy`, pixels.
+    pub fy: f64,
+    /// `Camera.cx`, pixels.
+    pub cx: f64,
+    /// `Camera.cy`, pixels.
+    pub cy: f64,
+    /// `Camera.k1 k2 p1 p2 k3` (OpenCV radial-tangential distortion).
+    pub dist: [f64; 5],
+    /// `Camera.width`, pixels.
+    pub width: u32,
+    /// `Camera.height`, pixels.
+    pub height: u32,
+    /// `Camera.fps`: frame rate (Hz).
+    pub fps: f64,
+    /// `Camera.bf`: baseline times fx (the virtual stereo baseline of RGB-D, pixel·m).
+    pub bf: f64,
+    /// `Camera.RGB`: true when images are RGB ordered (1), false for BGR (0).
+    pub rgb: bool,
+    /// `ThDepth`: close/far threshold in baselines.
+    pub th_depth: f64,
+    /// `DepthMapFactor`: depth PNG units per metre (TUM 5000, GRADE 1000).
+    pub depth_map_factor: f64,
+    /// `ORBextractor.*` parameters.
+    pub orb: OrbSettings,
+}
+
+/// The raw keys as read; all optional so that a missing key gets our own message.
+#[derive(Deserialize)]
+struct RawSettings {
+    #[serde(rename = "Camera.fx")]
+    fx: Option<f64>,
+    #[serde(rename = "Camera.fy")]
+    fy: Option<f64>,
+    #[serde(rename = "Camera.cx")]
+    cx: Option<f64>,
+    #[serde(rename = "Camera.cy")]
+    cy: Option<f64>,
+    #[serde(rename = "Camera.k1")]
+    k1: Option<f64>,
+    #[serde(rename = "Camera.k2")]
+    k2: Option<f64>,
+    #[serde(rename = "Camera.p1")]
+    p1: Option<f64>,
+    #[serde(rename = "Camera.p2")]
+    p2: Option<f64>,
+    #[serde(rename = "Camera.k3")]
+    k3: Option<f64>,
+    #[serde(rename = "Camera.width")]
+    width: Option<i64>,
+    #[serde(rename = "Camera.height")]
+    height: Option<i64>,
+    #[serde(rename = "Camera.fps")]
+    fps: Option<f64>,
+    #[serde(rename = "Camera.bf")]
+    bf: Option<f64>,
+    #[serde(rename = "Camera.RGB")]
+    rgb: Option<i64>,
+    #[serde(rename = "ThDepth")]
+    th_depth: Option<f64>,
+    #[serde(rename = "DepthMapFactor")]
+    depth_map_factor: Option<f64>,
+    #[serde(rename = "ORBextractor.nFeatures")]
+    n_features: Option<i64>,
+    #[serde(rename = "ORBextractor.scaleFactor")]
+    scale_factor: Option<f64>,
+    #[serde(rename = "ORBextractor.nLevels")]
+    n_levels: Option<i64>,
+    #[serde(rename = "ORBextractor.iniThFAST")]
+    ini_th_fast: Option<i64>,
+    #[serde(rename = "ORBextractor.minThFAST")]
+    min_th_fast: Option<i64>,
+}
+
+/// Applies the OpenCV-YAML tolerances (see the module doc) without changing line numbers.
+fn preprocess(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 16);
+    for line in text.split('\n') {
+        let trimmed = line.trim_start();
+        if trimmed.starts_with("%YAML") {
+            out.push('\n');
+            continue;
+        }
+        let fixed = match line.split_once(':') {
+            Some((key, value))
+                if !trimmed.starts_with('#')
+                    && !key.trim().is_empty()
+                    && key
+                        .trim()
+                        .chars()
+                        .all(|c| c.is_ascii_alphanumeric() || c == '.' || c == '_')
+                    && value.chars().next().is_some_and(|c| !c.is_whitespace()) =>
+            {
+                format!("{key}: {value}")
+            }
+            _ => line.to_string(),
+        };
+        out.push_str(&fixed);
+        out.push('\n');
+    }
+    out
+}
+
+/// 1-based line of each top-level key (the last occurrence, matching the value kept).
+fn key_lines(text: &str) -> HashMap<String, usize> {
+    let mut map = HashMap::new();
+    for (i, line) in text.split('\n').enumerate() {
+        let t = line.trim();
+        if t.starts_with('#') || t.starts_with('%') {
+            continue;
+        }
+        if let Some((key, _)) = t.split_once(':') {
+            map.insert(key.trim().to_string(), i + 1);
+        }
+    }
+    map
+}
+
+/// One failed validation rule: the key concerned and what is wrong.
+struct Problem {
+    key: &'static str,
+    message: String,
+}
+
+fn problem(key: &'static str, message: impl Into<String>) -> Problem {
+    Problem {
+        key,
+        message: message.into(),
+    }
+}
+
+impl Settings {
+    /// Reads and validates a settings file.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        Self::parse(&read_text(path)?, path)
+    }
+
+    /// Parses and validates settings text; `path` is only used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let pre = preprocess(text);
+        let lines = key_lines(&pre);
+        let options = serde_saphyr::options! {
+            duplicate_keys: serde_saphyr::DuplicateKeyPolicy::LastWins,
+            with_snippet: false,
+        };
+        let raw: RawSettings = serde_saphyr::from_str_with_options(&pre, options).map_err(|e| {
+            let msg = e.to_string();
+            match e.location() {
+                Some(loc) if loc.line() > 0 => IoError::parse(path, loc.line() as usize, msg),
+                _ => IoError::invalid(path, msg),
+            }
+        })?;
+        let at = |p: Problem| match lines.get(p.key) {
+            Some(&line) => IoError::parse(path, line, format!("{}: {}", p.key, p.message)),
+            None => IoError::invalid(path, format!("{}: {}", p.key, p.message)),
+        };
+        let s = Self::from_raw(raw).map_err(at)?;
+        s.check().map_err(at)?;
+        Ok(s)
+    }
+
+    fn from_raw(r: RawSettings) -> std::result::Result<Self, Problem> {
+        fn need<T>(v: Option<T>, key: &'static str) -> std::result::Result<T, Problem> {
+            v.ok_or_else(|| problem(key, "missing key"))
+        }
+        fn count<T: TryFrom<i64>>(v: i64, key: &'static str) -> std::result::Result<T, Problem> {
+            T::try_from(v).map_err(|_| problem(key, format!("{v} is out of range")))
+        }
+        let width = match r.width {
+            Some(w) => count(w, "Camera.width")?,
+            None => DEFAULT_SIZE.0,
+        };
+        let height = match r.height {
+            Some(h) => count(h, "Camera.height")?,
+            None => DEFAULT_SIZE.1,
+        };
+        let rgb = match need(r.rgb, "Camera.RGB")? {
+            0 => false,
+            1 => true,
+            v => return Err(problem("Camera.RGB", format!("expected 0 or 1, got {v}"))),
+        };
+        Ok(Self {
+            fx: need(r.fx, "Camera.fx")?,
+            fy: need(r.fy, "Camera.fy")?,
+            cx: need(r.cx, "Camera.cx")?,
+            cy: need(r.cy, "Camera.cy")?,
+            dist: [
+                need(r.k1, "Camera.k1")?,
+                need(r.k2, "Camera.k2")?,
+                need(r.p1, "Camera.p1")?,
+                need(r.p2, "Camera.p2")?,
+                r.k3.unwrap_or(0.0),
+            ],
+            width,
+            height,
+            fps: need(r.fps, "Camera.fps")?,
+            bf: need(r.bf, "Camera.bf")?,
+            rgb,
+            th_depth: need(r.th_depth, "ThDepth")?,
+            depth_map_factor: need(r.depth_map_factor, "DepthMapFactor")?,
+            orb: OrbSettings {
+                n_features: count(
+                    need(r.n_features, "ORBextractor.nFeatures")?,
+                    "ORBextractor.nFeatures",
+                )?,
+                scale_factor: need(r.scale_factor, "ORBextractor.scaleFactor")?,
+                n_levels: count(
+                    need(r.n_levels, "ORBextractor.nLevels")?,
+                    "ORBextractor.nLevels",
+                )?,
+                ini_th_fast: count(
+                    need(r.ini_th_fast, "ORBextractor.iniThFAST")?,
+                    "ORBextractor.iniThFAST",
+                )?,
+                min_th_fast: count(
+                    need(r.min_th_fast, "ORBextractor.minThFAST")?,
+                    "ORBextractor.minThFAST",
+                )?,
+            },
+        })
+    }
+
+    /// The validation rules; the first failure is reported.
+    fn check(&self) -> std::result::Result<(), Problem> {
+        let positive = |v: f64, key: &'static str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(problem(key, format!("must be a positive number, got {v}")))
+            }
+        };
+        positive(self.fx, "Camera.fx")?;
+        positive(self.fy, "Camera.fy")?;
+        if self.width == 0 {
+            return Err(problem("Camera.width", "must be positive"));
+        }
+        if self.height == 0 {
+            return Err(problem("Camera.height", "must be positive"));
+        }
+        if !(self.cx.is_finite() && (0.0..=self.width as f64).contains(&self.cx)) {
+            return Err(problem(
+                "Camera.cx",
+                format!("must lie in [0, width = {}], got {}", self.width, self.cx),
+            ));
+        }
+        if !(self.cy.is_finite() && (0.0..=self.height as f64).contains(&self.cy)) {
+            return Err(problem(
+                "Camera.cy",
+                format!("must lie in [0, height = {}], got {}", self.height, self.cy),
+            ));
+        }
+        const DIST_KEYS: [&str; 5] = [
+            "Camera.k1",
+            "Camera.k2",
+            "Camera.p1",
+            "Camera.p2",
+            "Camera.k3",
+        ];
+        for (v, key) in self.dist.iter().zip(DIST_KEYS) {
+            if !v.is_finite() {
+                return Err(problem(key, format!("must be finite, got {v}")));
+            }
+        }
+        positive(self.fps, "Camera.fps")?;
+        positive(self.bf, "Camera.bf")?;
+        positive(self.th_depth, "ThDepth")?;
+        positive(self.depth_map_factor, "DepthMapFactor")?;
+        if self.orb.n_features == 0 {
+            return Err(problem("ORBextractor.nFeatures", "must be positive"));
+        }
+        if !(self.orb.scale_factor.is_finite() && self.orb.scale_factor > 1.0) {
+            return Err(problem(
+                "ORBextractor.scaleFactor",
+                format!("must be > 1, got {}", self.orb.scale_factor),
+            ));
+        }
+        if self.orb.n_levels == 0 || self.orb.n_levels > 32 {
+            return Err(problem(
+                "ORBextractor.nLevels",
+                format!("must be in 1..=32, got {}", self.orb.n_levels),
+            ));
+        }
+        if self.orb.ini_th_fast == 0 || self.orb.ini_th_fast > 255 {
+            return Err(problem(
+                "ORBextractor.iniThFAST",
+                format!("must be in 1..=255, got {}", self.orb.ini_th_fast),
+            ));
+        }
+        if self.orb.min_th_fast == 0 || self.orb.min_th_fast > self.orb.ini_th_fast {
+            return Err(problem(
+                "ORBextractor.minThFAST",
+                format!(
+                    "must be in 1..=iniThFAST ({}), got {}",
+                    self.orb.ini_th_fast, self.orb.min_th_fast
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks the validation rules of [`Settings::read`] on settings built in code; the
+    /// error names `path` (where they came from or will go) and the key.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        self.check()
+            .map_err(|p| IoError::invalid(path, format!("{}: {}", p.key, p.message)))
+    }
+
+    /// The camera intrinsics and distortion.
+    pub fn camera(&self) -> PinholeCamera {
+        PinholeCamera {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            dist: self.dist,
+        }
+    }
+
+    /// Virtual stereo baseline `bf / fx` in metres (fr3: 0.0747 m).
+    pub fn baseline(&self) -> f64 {
+        self.bf / self.fx
+    }
+
+    /// Close/far depth threshold in metres, `bf · ThDepth / fx` (fr3: 2.988 m).
+    pub fn th_depth_metres(&self) -> f64 {
+        self.bf * self.th_depth / self.fx
+    }
+
+    /// The settings-file text (`%YAML:1.0` header, keys in ORB-SLAM2 order), readable by
+    /// ORB-SLAM2 and by [`Settings::parse`].
+    pub fn to_yaml_string(&self) -> String {
+        let mut s = String::from("%YAML:1.0\n\n# Camera calibration and distortion (OpenCV)\n");
+        let mut kv = |key: &str, v: String| {
+            let _ = writeln!(s, "{key}: {v}");
+        };
+        // `{:?}` prints the shortest text that reads back to the same f64, always with a
+        // decimal point or exponent, so YAML sees a float.
+        kv("Camera.fx", format!("{:?}", self.fx));
+        kv("Camera.fy", format!("{:?}", self.fy));
+        kv("Camera.cx", format!("{:?}", self.cx));
+        kv("Camera.cy", format!("{:?}", self.cy));
+        for (key, v) in ["k1", "k2", "p1", "p2", "k3"].iter().zip(self.dist) {
+            kv(&format!("Camera.{key}"), format!("{v:?}"));
+        }
+        kv("Camera.width", self.width.to_string());
+        kv("Camera.height", self.height.to_string());
+        kv("Camera.fps", format!("{:?}", self.fps));
+        kv("Camera.bf", format!("{:?}", self.bf));
+        kv("Camera.RGB", u8::from(self.rgb).to_string());
+        kv("ThDepth", format!("{:?}", self.th_depth));
+        kv("DepthMapFactor", format!("{:?}", self.depth_map_factor));
+        kv("ORBextractor.nFeatures", self.orb.n_features.to_string());
+        kv(
+            "ORBextractor.scaleFactor",
+            format!("{:?}", self.orb.scale_factor),
+        );
+        kv("ORBextractor.nLevels", self.orb.n_levels.to_string());
+        kv("ORBextractor.iniThFAST", self.orb.ini_th_fast.to_string());
+        kv("ORBextractor.minThFAST", self.orb.min_th_fast.to_string());
+        s
+    }
+
+    /// Validates and writes the settings file atomically.
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        self.validate(path)?;
+        write_atomic(path, self.to_yaml_string().as_bytes())
+    }
+
+    fn tum_common(fx: f64, fy: f64, cx: f64, cy: f64, dist: [f64; 5], factor: f64) -> Self {
+        Self {
+            fx,
+            fy,
+            cx,
+            cy,
+            dist,
+            width: 640,
+            height: 480,
+            fps: 30.0,
+            bf: 40.0,
+            rgb: true,
+            th_depth: 40.0,
+            depth_map_factor: factor,
+            orb: OrbSettings::default(),
+        }
+    }
+
+    /// ORB-SLAM2 `TUM1.yaml` (Kinect of the freiburg1 sequences, distorted).
+    pub fn tum1() -> Self {
+        Self::tum_common(
+            517.306408,
+            516.469215,
+            318.643040,
+            255.313989,
+            [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+            5000.0,
+        )
+    }
+
+    /// ORB-SLAM2 `TUM2.yaml` (freiburg2, distorted, depth factor 5208).
+    pub fn tum2() -> Self {
+        Self::tum_common(
+            520.908620,
+            521.007327,
+            325.141442,
+            249.701764,
+            [0.231222, -0.784899, -0.003257, -0.000105, 0.917205],
+            5208.0,
+        )
+    }
+
+    /// ORB-SLAM2 `TUM3.yaml` (freiburg3, the dynamic walking sequences; no distortion).
+    pub fn tum3() -> Self {
+        Self::tum_common(535.4, 539.2, 320.1, 247.6, [0.0; 5], 5000.0)
+    }
+
+    /// DynaPix `GRADE.yaml` (synthetic Isaac Sim sequences: depth in mm, 3000 features).
+    pub fn grade() -> Self {
+        let mut s = Self::tum_common(325.9103, 399.3103, 320.0, 240.0, [0.0; 5], 1000.0);
+        s.orb.n_features = 3000;
+        s
+    }
+
+    /// The preset called `name` (one of [`PRESET_NAMES`], case-insensitive).
+    pub fn preset(name: &str) -> Option<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "tum1" => Some(Self::tum1()),
+            "tum2" => Some(Self::tum2()),
+            "tum3" => Some(Self::tum3()),
+            "grade" => Some(Self::grade()),
+            _ => None,
+        }
+    }
+
+    /// The preset implied by a TUM folder name `rgbd_dataset_freiburgN_*` (N = 1, 2, 3).
+    pub fn preset_for_folder_name(name: &str) -> Option<Self> {
+        let rest = name.strip_prefix("rgbd_dataset_freiburg")?;
+        let (n, tail) = rest.split_at_checked(1)?;
+        if !tail.starts_with('_') {
+            return None;
+        }
+        Self::preset(&format!("tum{n}"))
+    }
+
+    /// The settings of a sequence folder: its `camera.yaml` if present, else the preset
+    /// implied by a `rgbd_dataset_freiburgN_*` folder name, else an error saying that the
+    /// camera cannot be told (the caller should then ask for `--camera`/`--settings`).
+    pub fn for_sequence_dir(dir: impl AsRef<Path>) -> Result<Self> {
+        let dir = dir.as_ref();
+        let file = dir.join(SEQUENCE_SETTINGS_FILE);
+        if file.is_file() {
+            return Self::read(&file);
+        }
+        // `.` or `seq/..` have no useful name: look at the resolved folder.
+        let resolved = std::fs::canonicalize(dir).map_err(|e| IoError::io(dir, e))?;
+        let name = resolved
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        Self::preset_for_folder_name(name).ok_or_else(|| {
+            IoError::invalid(
+                dir,
+                format!(
+                    "cannot tell the camera: no {SEQUENCE_SETTINGS_FILE} in the folder and its \
+                     name is not rgbd_dataset_freiburgN_*; give a settings file or a preset \
+                     ({})",
+                    PRESET_NAMES.join(", ")
+                ),
+            )
+        })
+    }
+
+    /// A warning when `DepthMapFactor` looks wrong for a raw depth image: the median valid
+    /// depth should lie between 0.2 m and 20 m (indoor RGB-D). `None` when plausible or when
+    /// the image has no valid depth.
+    pub fn depth_factor_warning(&self, raw_depth: &Gray16Image) -> Option<String> {
+        let mut valid: Vec<u16> = raw_depth
+            .pixels()
+            .map(|p| p[0])
+            .filter(|&v| v > 0)
+            .collect();
+        if valid.is_empty() {
+            return None;
+        }
+        let mid = valid.len() / 2;
+        let (_, median, _) = valid.select_nth_unstable(mid);
+        let metres = *median as f64 / self.depth_map_factor;
+        if (0.2..=20.0).contains(&metres) {
+            None
+        } else {
+            Some(format!(
+                "DepthMapFactor {} gives a median depth of {metres:.3} m (raw {}); \
+                 TUM uses 5000 (0.2 mm units), GRADE 1000 (mm)",
+                self.depth_map_factor, median
+            ))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::Luma;
+    use std::path::PathBuf;
+
+    /// An ORB-SLAM2-style file with the quirks of the upstream ones: `%YAML:1.0`, comments,
+    /// a string key, a repeated key, `key:value` without a space, viewer keys.
+    const FR3_LIKE: &str = "%YAML:1.0\n\
+        \n\
+        # Camera Parameters\n\
+        Camera.type: \"PinHole\"\n\
+        Camera.fx: 535.4\n\
+        Camera.fy: 539.2\n\
+        Camera.cx: 320.1\n\
+        Camera.cy: 247.6\n\
+        \n\
+        Camera.k1: 0.0\n\
+        Camera.k2: 0.0\n\
+        Camera.p1: 0.0\n\
+        Camera.p2: 0.0\n\
+        Camera.width: 640\n\
+        Camera.height: 480\n\
+        Camera.fps: 30.0\n\
+        Camera.bf: 40.0\n\
+        Camera.RGB: 1\n\
+        ThDepth: 40.0\n\
+        DepthMapFactor: 5000.0\n\
+        Camera.width: 640\n\
+        Camera.height: 480\n\
+        ORBextractor.nFeatures: 1000\n\
+        ORBextractor.scaleFactor: 1.2\n\
+        ORBextractor.nLevels: 8\n\
+        ORBextractor.iniThFAST: 20\n\
+        ORBextractor.minThFAST: 7\n\
+        Viewer.KeyFrameSize: 0.05\n\
+        Viewer.PointSize:2\n\
+        Viewer.ViewpointF: 500\n";
+
+    fn err(text: &str) -> String {
+        Settings::parse(text, Path::new("cam.yaml"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn parses_upstream_style_file_into_the_tum3_preset() {
+        let s = Settings::parse(FR3_LIKE, Path::new("TUM3.yaml")).unwrap();
+        assert_eq!(s, Settings::tum3());
+        assert!((s.baseline() - 0.074711).abs() < 1e-6);
+        assert!((s.th_depth_metres() - 1600.0 / 535.4).abs() < 1e-12);
+        let cam = s.camera();
+        assert_eq!(
+            (cam.width, cam.height, cam.fx, cam.cy),
+            (640, 480, 535.4, 247.6)
+        );
+        assert!(!cam.is_distorted());
+    }
+
+    #[test]
+    fn presets_round_trip_through_the_writer() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in PRESET_NAMES {
+            let s = Settings::preset(name).unwrap();
+            let p = dir.path().join(format!("{name}.yaml"));
+            s.write(&p).unwrap();
+            let text = std::fs::read_to_string(&p).unwrap();
+            assert!(text.starts_with("%YAML:1.0\n"));
+            assert_eq!(Settings::read(&p).unwrap(), s, "{name}");
+        }
+        assert_eq!(Settings::tum1().camera().dist[4], 1.163314);
+        assert_eq!(Settings::tum2().depth_map_factor, 5208.0);
+        assert_eq!(Settings::grade().orb.n_features, 3000);
+        assert_eq!(Settings::grade().depth_map_factor, 1000.0);
+        assert!(Settings::preset("TUM3").is_some());
+        assert!(Settings::preset("kitti").is_none());
+    }
+
+    #[test]
+    fn optional_keys_take_their_defaults() {
+        let text = FR3_LIKE
+            .replace("Camera.width: 640\n", "")
+            .replace("Camera.height: 480\n", "")
+            .replace("Camera.p2: 0.0\n", "Camera.p2: 0.0\nCamera.k3: 0.5\n");
+        let s = Settings::parse(&text, Path::new("x")).unwrap();
+        assert_eq!((s.width, s.height), (640, 480));
+        assert_eq!(s.dist[4], 0.5);
+    }
+
+    #[test]
+    fn bad_settings_name_file_line_and_key() {
+        // Line numbers: FR3_LIKE has Camera.fx on line 5, Camera.fps on 16, DepthMapFactor on 20.
+        let e = err(&FR3_LIKE.replace("Camera.fx: 535.4", "Camera.fx: -535.4"));
+        assert!(
+            e.contains("cam.yaml:5") && e.contains("Camera.fx") && e.contains("positive"),
+            "{e}"
+        );
+        let e = err(&FR3_LIKE.replace("Camera.fps: 30.0", "Camera.fps: 0"));
+        assert!(e.contains("cam.yaml:16") && e.contains("Camera.fps"), "{e}");
+        let e = err(&FR3_LIKE.replace("DepthMapFactor: 5000.0", "DepthMapFactor: 0.0"));
+        assert!(
+            e.contains("cam.yaml:20") && e.contains("DepthMapFactor"),
+            "{e}"
+        );
+        let e = err(&FR3_LIKE.replace("Camera.fx: 535.4", "Camera.fx: abc"));
+        assert!(e.contains("cam.yaml:5"), "{e}");
+        let e = err(&FR3_LIKE.replace("Camera.RGB: 1", "Camera.RGB: 3"));
+        assert!(e.contains("cam.yaml:18") && e.contains("Camera.RGB"), "{e}");
+        let e = err(&FR3_LIKE.replace("ORBextractor.minThFAST: 7", "ORBextractor.minThFAST: 30"));
+        assert!(e.contains("cam.yaml:27") && e.contains("minThFAST"), "{e}");
+        let e = err(&FR3_LIKE.replace("Camera.cx: 320.1", "Camera.cx: 1320.1"));
+        assert!(e.contains("cam.yaml:7") && e.contains("Camera.cx"), "{e}");
+        let e = err(&FR3_LIKE.replace("ORBextractor.nLevels: 8", "ORBextractor.nLevels: -8"));
+        assert!(e.contains("cam.yaml:25") && e.contains("nLevels"), "{e}");
+        let e = err(&FR3_LIKE.replace("Camera.fy: 539.2\n", ""));
+        assert!(
+            e.contains("cam.yaml") && e.contains("Camera.fy") && e.contains("missing"),
+            "{e}"
+        );
+        let e = err(&FR3_LIKE.replace("Camera.k1: 0.0", "Camera.k1: [0.0"));
+        assert!(e.contains("cam.yaml:"), "{e}");
+        let e = err("");
+        assert!(e.contains("cam.yaml"), "{e}");
+        let e = Settings::read("/no/such/camera.yaml").unwrap_err();
+        assert!(matches!(e, IoError::Io { .. }), "{e}");
+        let mut s = Settings::tum3();
+        s.fx = f64::NAN;
+        let e = s
+            .write(Path::new("/tmp/never-written.yaml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("Camera.fx"), "{e}");
+    }
+
+    #[test]
+    fn settings_for_a_sequence_folder() {
+        let root = tempfile::tempdir().unwrap();
+        let fr3 = root.path().join("rgbd_dataset_freiburg3_walking_xyz");
+        std::fs::create_dir(&fr3).unwrap();
+        assert_eq!(Settings::for_sequence_dir(&fr3).unwrap(), Settings::tum3());
+        assert_eq!(
+            Settings::for_sequence_dir(fr3.join(".")).unwrap(),
+            Settings::tum3()
+        );
+        Settings::grade()
+            .write(fr3.join(SEQUENCE_SETTINGS_FILE))
+            .unwrap();
+        assert_eq!(Settings::for_sequence_dir(&fr3).unwrap(), Settings::grade());
+        let other = root.path().join("my_sequence");
+        std::fs::create_dir(&other).unwrap();
+        let e = Settings::for_sequence_dir(&other).unwrap_err().to_string();
+        assert!(
+            e.contains("my_sequence") && e.contains("cannot tell the camera"),
+            "{e}"
+        );
+        assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg4_x").is_none());
+        assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg1xyz").is_none());
+        let real = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
+        ));
+        if real.is_dir() {
+            assert_eq!(Settings::for_sequence_dir(&real).unwrap(), Settings::tum1());
+        } else {
+            eprintln!("skipped real-data part: {} not found", real.display());
+        }
+    }
+
+    #[test]
+    fn depth_factor_warning_flags_implausible_scales() {
+        // 2 m in TUM units.
+        let raw = Gray16Image::from_fn(10, 10, |x, _| Luma([if x == 0 { 0 } else { 10000 }]));
+        assert!(Settings::tum3().depth_factor_warning(&raw).is_none());
+        let mut s = Settings::tum3();
+        s.depth_map_factor = 100.0;
+        let w = s.depth_factor_warning(&raw).unwrap();
+        assert!(w.contains("100.000 m"), "{w}");
+        assert!(s.depth_factor_warning(&Gray16Image::new(4, 4)).is_none());
+    }
+}
