@@ -29,6 +29,12 @@ enum Command {
     Slam(cmd::slam::Args),
     /// Train or import a bag-of-words vocabulary.
     Vocab(cmd::vocab::Args),
+    /// Run a method end to end on a sequence (motion maps if needed, SLAM, evaluation).
+    Run(cmd::run::Args),
+    /// Run many methods × sequences × seeds and build the paper-style table.
+    Experiment(cmd::experiment::Args),
+    /// The one-command demo: synthetic walking sequences, ORB-SLAM2 vs DynaPix, report.
+    Demo(cmd::demo::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -51,6 +57,9 @@ fn main() -> std::process::ExitCode {
         Command::Motion(a) => cmd::motion::run(a),
         Command::Slam(a) => cmd::slam::run(a),
         Command::Vocab(a) => cmd::vocab::run(a),
+        Command::Run(a) => cmd::run::run(a),
+        Command::Experiment(a) => cmd::experiment::run(a),
+        Command::Demo(a) => cmd::demo::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,8 +1,28 @@
 //! Dense optical flow for dynapix: the [`FlowField`] type, the [`FlowProvider`] trait that
-//! lets other flow sources plug in, and the built-in DIS implementation (Kroeger et al.,
-//! ECCV 2016).
+//! lets other flow sources plug in, the built-in DIS implementation (Kroeger et al.,
+//! ECCV 2016) in [`dis`], Middlebury `.flo` files ([`flo`]) and a provider reading
+//! precomputed flows ([`precomputed`]), the Middlebury colour-wheel picture ([`viz`]),
+//! backward warping ([`warp`]) and end-point-error statistics ([`metrics`]).
 
 use image::GrayImage;
+
+pub mod dis;
+pub mod flo;
+pub mod metrics;
+pub mod pairs;
+pub mod plane;
+pub mod precomputed;
+pub mod variational;
+pub mod viz;
+pub mod warp;
+
+pub use dis::{DisFlow, DisParams, Preset};
+pub use flo::{read_flo, write_flo};
+pub use metrics::{FlowErrorStats, flow_error};
+pub use precomputed::PrecomputedFlow;
+pub use variational::VariationalParams;
+pub use viz::{flow_to_color, flow_to_color_with_max};
+pub use warp::{warp_gray, warp_rgb};
 
 /// A dense flow field: for pixel x of image A, `B(x + f(x)) ≈ A(x)`.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,6 +49,57 @@ impl FlowField {
     pub fn get(&self, x: u32, y: u32) -> [f32; 2] {
         self.data[y as usize * self.width as usize + x as usize]
     }
+
+    /// Flow vector at pixel (x, y), `None` outside the field.
+    pub fn try_get(&self, x: u32, y: u32) -> Option<[f32; 2]> {
+        if x < self.width && y < self.height {
+            self.data
+                .get(y as usize * self.width as usize + x as usize)
+                .copied()
+        } else {
+            None
+        }
+    }
+
+    /// Builds a field from separate row-major u and v planes (lengths must be `width·height`;
+    /// missing values are taken as 0).
+    pub fn from_planes(width: u32, height: u32, u: &[f32], v: &[f32]) -> Self {
+        let n = width as usize * height as usize;
+        let data = (0..n)
+            .map(|i| {
+                [
+                    u.get(i).copied().unwrap_or(0.0),
+                    v.get(i).copied().unwrap_or(0.0),
+                ]
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// A field with the same vector at every pixel.
+    pub fn constant(width: u32, height: u32, f: [f32; 2]) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![f; width as usize * height as usize],
+        }
+    }
+
+    /// Splits into row-major u and v planes.
+    pub fn to_planes(&self) -> (Vec<f32>, Vec<f32>) {
+        self.data.iter().map(|f| (f[0], f[1])).unzip()
+    }
+
+    /// Whether every component is finite.
+    pub fn is_finite(&self) -> bool {
+        self.data
+            .iter()
+            .all(|f| f[0].is_finite() && f[1].is_finite())
+    }
 }
 
 /// Errors of flow computation and flow files.
@@ -42,13 +113,50 @@ pub enum FlowError {
         /// Size of the second image.
         b: (u32, u32),
     },
+    /// Reading or writing a flow file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A flow file is malformed or does not fit the request.
+    #[error("{path}: {reason}")]
+    BadFile {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// Any other failure, with a message.
     #[error("{0}")]
     Other(String),
+}
+
+/// Names of the two frames of a flow request, for providers that look flows up (files).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FramePair<'a> {
+    /// Name of frame A (e.g. its timestamp or file stem).
+    pub a: &'a str,
+    /// Name of frame B.
+    pub b: &'a str,
 }
 
 /// A source of dense optical flow between two grey images (DIS, precomputed files, …).
 pub trait FlowProvider: Send + Sync {
     /// Flow from `a` to `b`: `b(x + f(x)) ≈ a(x)`.
     fn flow(&self, a: &GrayImage, b: &GrayImage) -> Result<FlowField, FlowError>;
+
+    /// Flow from `a` to `b` when the caller can also name the frames. Providers that compute
+    /// flow ignore the names (the default); [`PrecomputedFlow`] uses them to find its file.
+    fn flow_named(
+        &self,
+        a: &GrayImage,
+        b: &GrayImage,
+        names: FramePair<'_>,
+    ) -> Result<FlowField, FlowError> {
+        let _ = names;
+        self.flow(a, b)
+    }
 }

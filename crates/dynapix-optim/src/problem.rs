@@ -58,6 +58,9 @@ pub struct PoseOnlyParams {
     pub weight_mode: WeightMode,
     /// Include observations without depth as mono edges (true in ORB-SLAM2 and paper mode).
     pub use_mono: bool,
+    /// With fewer edges than this, stop after the first round (ORB-SLAM2:
+    /// `if (optimizer.edges().size() < 10) break;`, 10).
+    pub min_edges_for_rounds: usize,
 }
 
 impl Default for PoseOnlyParams {
@@ -70,6 +73,7 @@ impl Default for PoseOnlyParams {
             robust_rounds: 3,
             weight_mode: WeightMode::Paper,
             use_mono: true,
+            min_edges_for_rounds: 10,
         }
     }
 }

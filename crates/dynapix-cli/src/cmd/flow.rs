@@ -1,10 +1,85 @@
-//! `dynapix flow` (being built).
+//! `dynapix flow`: dense optical flow between two images with the built-in DIS
+//! (`dynapix_flow::DisFlow`). Writes the flow from A to B (`B(x + f(x)) ≈ A(x)`) as a
+//! Middlebury `.flo` file and, optionally, its colour-wheel picture. Colour images are
+//! converted to grey (ITU-R 601 luma, as the `image` crate does).
+
+use anyhow::{Context, bail};
+use dynapix_flow::{
+    DisFlow, FlowProvider, Preset, flow_to_color, flow_to_color_with_max, write_flo,
+};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Arguments of `dynapix flow`.
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// First image (A).
+    pub a: PathBuf,
+    /// Second image (B), same size as A.
+    pub b: PathBuf,
+    /// Output `.flo` file (flow from A to B).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// DIS preset: ultrafast, fast or medium (OpenCV's presets).
+    #[arg(long, default_value = "medium")]
+    pub preset: String,
+    /// Also write the Middlebury colour-wheel picture of the flow (PNG).
+    #[arg(long)]
+    pub viz: Option<PathBuf>,
+    /// Flow magnitude (pixels) shown fully saturated in the picture; default: the largest.
+    #[arg(long)]
+    pub viz_max: Option<f32>,
+}
+
+fn load_gray(path: &Path) -> anyhow::Result<image::GrayImage> {
+    let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    Ok(img.to_luma8())
+}
+
+/// Saves a PNG atomically (temporary file in the same folder, then rename).
+fn save_png_atomic(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    img.save_with_format(&tmp, image::ImageFormat::Png)
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
 
 /// Runs `dynapix flow`.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("dynapix flow is not available in this build yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let preset: Preset = args.preset.parse()?;
+    let a = load_gray(&args.a)?;
+    let b = load_gray(&args.b)?;
+    if a.dimensions() != b.dimensions() {
+        bail!(
+            "images differ in size: {} is {}x{}, {} is {}x{}",
+            args.a.display(),
+            a.width(),
+            a.height(),
+            args.b.display(),
+            b.width(),
+            b.height()
+        );
+    }
+    let dis = DisFlow::with_preset(preset);
+    let t = Instant::now();
+    let flow = dis.flow(&a, &b)?;
+    tracing::info!(
+        "DIS {:?} on {}x{}: {:.1} ms",
+        preset,
+        a.width(),
+        a.height(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    write_flo(&args.out, &flow)?;
+    if let Some(viz) = &args.viz {
+        let img = match args.viz_max {
+            Some(m) => flow_to_color_with_max(&flow, m),
+            None => flow_to_color(&flow),
+        };
+        save_png_atomic(&img, viz)?;
+    }
+    Ok(())
 }

@@ -5,3 +5,6 @@ pub mod motion;
 pub mod slam;
 pub mod synth;
 pub mod vocab;
+pub mod run;
+pub mod experiment;
+pub mod demo;

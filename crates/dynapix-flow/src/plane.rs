@@ -1,0 +1,284 @@
+//! Single-channel `f32` image planes and the low-level operations DIS needs: 2× box
+//! downsampling for the pyramid, Sobel gradients, bilinear sampling with replicated borders,
+//! padding with replicated borders and bilinear resizing of flow fields between levels.
+//!
+//! Everything is row-major and parallelised over rows with rayon; every output element is
+//! computed from inputs alone, so the results do not depend on the thread count.
+
+use rayon::prelude::*;
+
+/// A row-major single-channel `f32` image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plane {
+    /// Width in pixels.
+    pub w: usize,
+    /// Height in pixels.
+    pub h: usize,
+    /// `w * h` values, row-major.
+    pub data: Vec<f32>,
+}
+
+impl Plane {
+    /// A plane of zeros.
+    pub fn zeros(w: usize, h: usize) -> Self {
+        Self {
+            w,
+            h,
+            data: vec![0.0; w * h],
+        }
+    }
+
+    /// Converts an 8-bit grey image to `f32` intensities in `[0, 255]`.
+    pub fn from_gray(img: &image::GrayImage) -> Self {
+        Self {
+            w: img.width() as usize,
+            h: img.height() as usize,
+            data: img.as_raw().iter().map(|&p| f32::from(p)).collect(),
+        }
+    }
+
+    /// Value at (x, y) with coordinates clamped to the image (replicated border).
+    #[inline]
+    pub fn at_clamped(&self, x: isize, y: isize) -> f32 {
+        let xc = x.clamp(0, self.w as isize - 1) as usize;
+        let yc = y.clamp(0, self.h as isize - 1) as usize;
+        self.data[yc * self.w + xc]
+    }
+
+    /// Bilinear sample at real coordinates (pixel centres at integers), replicated border.
+    #[inline(always)]
+    pub fn bilinear(&self, x: f32, y: f32) -> f32 {
+        let xm = (self.w - 1) as f32;
+        let ym = (self.h - 1) as f32;
+        let x = x.clamp(0.0, xm);
+        let y = y.clamp(0.0, ym);
+        // Clamped to >= 0, so truncation is floor (and much cheaper than `floor` on x86-64).
+        let x0 = x as usize;
+        let y0 = y as usize;
+        let fx = x - x0 as f32;
+        let fy = y - y0 as f32;
+        let x1 = (x0 + 1).min(self.w - 1);
+        let y1 = (y0 + 1).min(self.h - 1);
+        let r0 = &self.data[y0 * self.w..(y0 + 1) * self.w];
+        let r1 = &self.data[y1 * self.w..(y1 + 1) * self.w];
+        let top = r0[x0] + fx * (r0[x1] - r0[x0]);
+        let bot = r1[x0] + fx * (r1[x1] - r1[x0]);
+        top + fy * (bot - top)
+    }
+
+    /// Halves the resolution by averaging 2×2 blocks (an odd last row/column is dropped, like
+    /// an area resize to `w/2 × h/2`). Sizes never go below 1.
+    pub fn downsample2(&self) -> Plane {
+        let nw = (self.w / 2).max(1);
+        let nh = (self.h / 2).max(1);
+        let mut out = Plane::zeros(nw, nh);
+        out.data
+            .par_chunks_mut(nw)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let y0 = (2 * y).min(self.h - 1);
+                let y1 = (2 * y + 1).min(self.h - 1);
+                let r0 = &self.data[y0 * self.w..(y0 + 1) * self.w];
+                let r1 = &self.data[y1 * self.w..(y1 + 1) * self.w];
+                for (x, o) in row.iter_mut().enumerate() {
+                    let x0 = (2 * x).min(self.w - 1);
+                    let x1 = (2 * x + 1).min(self.w - 1);
+                    *o = 0.25 * (r0[x0] + r0[x1] + r1[x0] + r1[x1]);
+                }
+            });
+        out
+    }
+
+    /// Sobel gradients divided by 8, i.e. in intensity units per pixel (replicated border).
+    pub fn sobel(&self) -> (Plane, Plane) {
+        let (w, h) = (self.w, self.h);
+        let mut gx = Plane::zeros(w, h);
+        let mut gy = Plane::zeros(w, h);
+        gx.data
+            .par_chunks_mut(w)
+            .zip(gy.data.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (rx, ry))| {
+                let ym = y.saturating_sub(1);
+                let yp = (y + 1).min(h - 1);
+                let a = &self.data[ym * w..(ym + 1) * w];
+                let b = &self.data[y * w..(y + 1) * w];
+                let c = &self.data[yp * w..(yp + 1) * w];
+                for x in 0..w {
+                    let xm = x.saturating_sub(1);
+                    let xp = (x + 1).min(w - 1);
+                    let dx = (a[xp] - a[xm]) + 2.0 * (b[xp] - b[xm]) + (c[xp] - c[xm]);
+                    let dy = (c[xm] - a[xm]) + 2.0 * (c[x] - a[x]) + (c[xp] - a[xp]);
+                    rx[x] = dx * 0.125;
+                    ry[x] = dy * 0.125;
+                }
+            });
+        (gx, gy)
+    }
+
+    /// Central differences `(f(x+1) - f(x-1)) / 2` (one-sided halves at the border).
+    pub fn central_diff(&self) -> (Plane, Plane) {
+        let (w, h) = (self.w, self.h);
+        let mut gx = Plane::zeros(w, h);
+        let mut gy = Plane::zeros(w, h);
+        gx.data
+            .par_chunks_mut(w)
+            .zip(gy.data.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (rx, ry))| {
+                let ym = y.saturating_sub(1);
+                let yp = (y + 1).min(h - 1);
+                let a = &self.data[ym * w..(ym + 1) * w];
+                let b = &self.data[y * w..(y + 1) * w];
+                let c = &self.data[yp * w..(yp + 1) * w];
+                for x in 0..w {
+                    let xm = x.saturating_sub(1);
+                    let xp = (x + 1).min(w - 1);
+                    rx[x] = 0.5 * (b[xp] - b[xm]);
+                    ry[x] = 0.5 * (c[x] - a[x]);
+                }
+            });
+        (gx, gy)
+    }
+
+    /// A copy with `border` replicated pixels on every side (size `(w+2b) × (h+2b)`).
+    pub fn padded(&self, border: usize) -> Plane {
+        let pw = self.w + 2 * border;
+        let ph = self.h + 2 * border;
+        let mut out = Plane::zeros(pw, ph);
+        out.data
+            .par_chunks_mut(pw)
+            .enumerate()
+            .for_each(|(py, row)| {
+                let y = (py as isize - border as isize).clamp(0, self.h as isize - 1) as usize;
+                let src = &self.data[y * self.w..(y + 1) * self.w];
+                let first = src[0];
+                let last = src[self.w - 1];
+                row[..border].fill(first);
+                row[border..border + self.w].copy_from_slice(src);
+                row[border + self.w..].fill(last);
+            });
+        out
+    }
+}
+
+/// Bilinear resize of a flow (u, v planes) to `dw × dh`, scaling vectors by the size ratio.
+/// Pixel centres are aligned (`x_src = (x_dst + 0.5) · sw/dw − 0.5`), as in an image resize.
+pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane) {
+    let sx = u.w as f32 / dw as f32;
+    let sy = u.h as f32 / dh as f32;
+    let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+    // Source columns and weights are the same for every row: compute them once.
+    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+        (0..n_dst)
+            .map(|d| {
+                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                let i0 = p as usize;
+                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+            })
+            .collect()
+    };
+    let cols = taps(dw, u.w, sx);
+    let rows = taps(dh, u.h, sy);
+    let mut ou = Plane::zeros(dw, dh);
+    let mut ov = Plane::zeros(dw, dh);
+    let sw = u.w;
+    ou.data
+        .par_chunks_mut(dw)
+        .zip(ov.data.par_chunks_mut(dw))
+        .zip(rows.par_iter())
+        .for_each(|((ru, rv), &(y0, y1, fy))| {
+            let (u0, u1) = (
+                &u.data[y0 * sw..(y0 + 1) * sw],
+                &u.data[y1 * sw..(y1 + 1) * sw],
+            );
+            let (v0, v1) = (
+                &v.data[y0 * sw..(y0 + 1) * sw],
+                &v.data[y1 * sw..(y1 + 1) * sw],
+            );
+            for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
+                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                *pu = (tu + fy * (bu - tu)) * scale_u;
+                *pv = (tv + fy * (bv - tv)) * scale_v;
+            }
+        });
+    (ou, ov)
+}
+
+/// Backward warp: `out(x) = src(x + (u, v)(x))`, bilinear with replicated border.
+pub fn warp_plane(src: &Plane, u: &Plane, v: &Plane) -> Plane {
+    let w = u.w;
+    let mut out = Plane::zeros(w, u.h);
+    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let o = y * w;
+        for (x, px) in row.iter_mut().enumerate() {
+            *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
+        }
+    });
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(w: usize, h: usize) -> Plane {
+        let mut p = Plane::zeros(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                p.data[y * w + x] = 3.0 * x as f32 + 5.0 * y as f32;
+            }
+        }
+        p
+    }
+
+    #[test]
+    fn sobel_and_central_diff_recover_ramp_slope() {
+        let p = ramp(9, 7);
+        let (gx, gy) = p.sobel();
+        let (cx, cy) = p.central_diff();
+        let i = 3 * 9 + 4;
+        assert!((gx.data[i] - 3.0).abs() < 1e-5 && (gy.data[i] - 5.0).abs() < 1e-5);
+        assert!((cx.data[i] - 3.0).abs() < 1e-5 && (cy.data[i] - 5.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn bilinear_interpolates_and_clamps() {
+        let p = ramp(4, 3);
+        assert!((p.bilinear(1.5, 0.25) - (4.5 + 1.25)).abs() < 1e-5);
+        assert_eq!(p.bilinear(-3.0, -2.0), 0.0);
+        assert_eq!(p.bilinear(10.0, 10.0), 9.0 + 10.0);
+    }
+
+    #[test]
+    fn padding_replicates_and_downsample_averages() {
+        let p = ramp(4, 2);
+        let q = p.padded(2);
+        assert_eq!((q.w, q.h), (8, 6));
+        assert_eq!(q.data[0], p.data[0]);
+        assert_eq!(q.data[5 * 8 + 7], p.data[7]);
+        let d = p.downsample2();
+        assert_eq!((d.w, d.h), (2, 1));
+        assert!((d.data[0] - (0.0 + 3.0 + 5.0 + 8.0) / 4.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn resize_flow_scales_vectors() {
+        let u = Plane {
+            w: 2,
+            h: 2,
+            data: vec![1.0; 4],
+        };
+        let v = Plane {
+            w: 2,
+            h: 2,
+            data: vec![-2.0; 4],
+        };
+        let (ru, rv) = resize_flow(&u, &v, 4, 4);
+        assert!(ru.data.iter().all(|&a| (a - 2.0).abs() < 1e-6));
+        assert!(rv.data.iter().all(|&a| (a + 4.0).abs() < 1e-6));
+    }
+}

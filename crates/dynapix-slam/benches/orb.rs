@@ -1,0 +1,61 @@
+//! ORB extraction time per 640×480 fr1_xyz frame (TUM settings), and vocabulary transform time.
+//! Run: `cargo bench -p dynapix-slam --bench orb`.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
+use std::hint::black_box;
+use std::path::PathBuf;
+
+fn frame() -> Option<image::GrayImage> {
+    let dir = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz/rgb"
+    ));
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    files.sort();
+    let img = image::open(files.first()?).ok()?;
+    Some(rgb_to_gray_orbslam(&img.to_rgb8()))
+}
+
+/// CPU time (user + system, all threads) of this process in seconds, from /proc/self/stat;
+/// unlike wall time it is barely affected by other processes on a shared machine.
+fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+fn bench(c: &mut Criterion) {
+    let Some(img) = frame() else {
+        eprintln!("skipping: ../shared/data fr1_xyz frames not found");
+        return;
+    };
+    let orb = OrbExtractor::default();
+    // Load-independent figure: CPU time per extraction over 100 runs.
+    if let Some(t0) = cpu_seconds() {
+        let wall = std::time::Instant::now();
+        let runs = 100;
+        for _ in 0..runs {
+            black_box(orb.extract(black_box(&img)));
+        }
+        if let Some(t1) = cpu_seconds() {
+            eprintln!(
+                "orb_extract CPU time {:.2} ms/frame (all threads), wall {:.2} ms/frame, {} keypoints",
+                (t1 - t0) * 1000.0 / runs as f64,
+                wall.elapsed().as_secs_f64() * 1000.0 / runs as f64,
+                orb.extract(&img).0.len()
+            );
+        }
+    }
+    c.bench_function("orb_extract_640x480_fr1_xyz", |b| {
+        b.iter(|| black_box(orb.extract(black_box(&img))))
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,278 @@
+//! FAST-9 (16-pixel Bresenham circle, 9 contiguous) corner detection with 3×3 non-maximum
+//! suppression on a rectangular region of interest, as OpenCV's `FAST(roi, kps, th, true)` that
+//! ORB-SLAM2 calls once per 30-px cell (spec §6.2). The region is treated as a standalone image:
+//! no corner within 3 px of its border, and suppression does not look outside it.
+
+use super::imgproc::Plane;
+
+/// Circle offsets (dx, dy) in OpenCV's order, starting at the top and going clockwise.
+const CIRCLE: [(isize, isize); 16] = [
+    (0, 3),
+    (1, 3),
+    (2, 2),
+    (3, 1),
+    (3, 0),
+    (3, -1),
+    (2, -2),
+    (1, -3),
+    (0, -3),
+    (-1, -3),
+    (-2, -2),
+    (-3, -1),
+    (-3, 0),
+    (-3, 1),
+    (-2, 2),
+    (-1, 3),
+];
+
+/// Arc length of the FAST-9 test.
+const ARC: usize = 9;
+
+/// A detected corner in ROI coordinates with its FAST score.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Corner {
+    pub x: usize,
+    pub y: usize,
+    pub score: i32,
+}
+
+/// Reusable buffers of the detector (one per worker), so cells do not allocate.
+#[derive(Default)]
+pub(crate) struct FastScratch {
+    scores: Vec<i32>,
+    cands: Vec<Corner>,
+    flags: Vec<u8>,
+    idx: Vec<usize>,
+}
+
+/// True when the 16-bit circular mask has ≥ 9 contiguous set bits.
+#[inline(always)]
+fn has_arc(m: u32) -> bool {
+    let full = m | (m << 16);
+    let mut acc = full;
+    for s in 1..ARC as u32 {
+        acc &= full >> s;
+    }
+    acc & 0xFFFF != 0
+}
+
+/// Linear offsets of the circle for a row stride.
+fn offsets(stride: usize) -> [isize; 16] {
+    let mut o = [0isize; 16];
+    for (k, &(dx, dy)) in CIRCLE.iter().enumerate() {
+        o[k] = dx + dy * stride as isize;
+    }
+    o
+}
+
+/// Corner score as OpenCV's `cornerScore<16>`: the largest threshold at which the pixel is still a
+/// FAST-9 corner, minus one (never below `threshold − 1`).
+#[inline]
+fn corner_score(data: &[u8], c: usize, off: &[isize; 16], threshold: i32) -> i32 {
+    let v = data[c] as i32;
+    // Differences around the circle, wrapped so that every 9-arc is a contiguous window.
+    let mut d = [0i32; 24];
+    for k in 0..16 {
+        d[k] = v - data[(c as isize + off[k]) as usize] as i32;
+    }
+    for k in 16..24 {
+        d[k] = d[k - 16];
+    }
+    // Window minima / maxima of length 2, 4, 8 by doubling, then 9.
+    let mut mn2 = [0i32; 23];
+    let mut mx2 = [0i32; 23];
+    for i in 0..23 {
+        mn2[i] = d[i].min(d[i + 1]);
+        mx2[i] = d[i].max(d[i + 1]);
+    }
+    let mut mn4 = [0i32; 21];
+    let mut mx4 = [0i32; 21];
+    for i in 0..21 {
+        mn4[i] = mn2[i].min(mn2[i + 2]);
+        mx4[i] = mx2[i].max(mx2[i + 2]);
+    }
+    let mut best = threshold;
+    for i in 0..16 {
+        let mn9 = mn4[i].min(mn4[i + 4]).min(d[i + 8]);
+        let mx9 = mx4[i].max(mx4[i + 4]).max(d[i + 8]);
+        // Centre brighter than the whole arc (mn > 0) or darker (−mx > 0).
+        best = best.max(mn9).max(-mx9);
+    }
+    best - 1
+}
+
+/// Detects FAST-9 corners with non-maximum suppression in the ROI `(x0, y0, x1, y1)` = `[x0, x1) × [y0, y1)` of
+/// `img` at `threshold`; corners are returned in row-major order, coordinates relative to
+/// (x0, y0).
+pub(crate) fn detect_roi(
+    img: &Plane,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    threshold: i32,
+    scratch: &mut FastScratch,
+    out: &mut Vec<Corner>,
+) {
+    out.clear();
+    let (rw, rh) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
+    if rw < 7 || rh < 7 || x1 > img.w || y1 > img.h {
+        return;
+    }
+    let stride = img.w;
+    let off = offsets(stride);
+    let data = &img.data[..];
+    let t = threshold.clamp(0, 255) as u8;
+    scratch.scores.clear();
+    scratch.scores.resize(rw * rh, 0);
+    scratch.cands.clear();
+    scratch.flags.clear();
+    scratch.flags.resize(rw, 0);
+    let n = rw - 6;
+    for ry in 3..rh - 3 {
+        let y = y0 + ry;
+        let row = &data[y * stride + x0..y * stride + x1];
+        let up = &data[(y - 3) * stride + x0..(y - 3) * stride + x1];
+        let dn = &data[(y + 3) * stride + x0..(y + 3) * stride + x1];
+        // Quick branch-free pre-test on the compass pixels 0 (up), 4 (right), 8 (down),
+        // 12 (left): any 9-arc contains two neighbouring compass pixels of its class.
+        let (c, rt, lt, u, d) = (
+            &row[3..3 + n],
+            &row[6..6 + n],
+            &row[..n],
+            &up[3..3 + n],
+            &dn[3..3 + n],
+        );
+        let flags = &mut scratch.flags[..n];
+        for i in 0..n {
+            let v = c[i];
+            let hi = v.saturating_add(t);
+            let lo = v.saturating_sub(t);
+            let (b0, b4, b8, b12) = (u[i] > hi, rt[i] > hi, d[i] > hi, lt[i] > hi);
+            let (d0, d4, d8, d12) = (u[i] < lo, rt[i] < lo, d[i] < lo, lt[i] < lo);
+            let bright = (b0 & b4) | (b4 & b8) | (b8 & b12) | (b12 & b0);
+            let dark = (d0 & d4) | (d4 & d8) | (d8 & d12) | (d12 & d0);
+            flags[i] = (bright | dark) as u8;
+        }
+        let candidates = &mut scratch.idx;
+        candidates.clear();
+        for (ci, chunk) in flags.chunks(8).enumerate() {
+            // Most pixels fail the pre-test: skip eight at a time.
+            if chunk.iter().all(|&f| f == 0) {
+                continue;
+            }
+            for (j, &f) in chunk.iter().enumerate() {
+                if f != 0 {
+                    candidates.push(ci * 8 + j);
+                }
+            }
+        }
+        for &i in candidates.iter() {
+            let rx = i + 3;
+            let c = y * stride + x0 + rx;
+            let v = data[c] as i32;
+            let (hi, lo) = (v + threshold, v - threshold);
+            let (mut bm, mut dm) = (0u32, 0u32);
+            for (k, &o) in off.iter().enumerate() {
+                let p = data[(c as isize + o) as usize] as i32;
+                bm |= ((p > hi) as u32) << k;
+                dm |= ((p < lo) as u32) << k;
+            }
+            if has_arc(bm) || has_arc(dm) {
+                let s = corner_score(data, c, &off, threshold);
+                scratch.scores[ry * rw + rx] = s;
+                scratch.cands.push(Corner {
+                    x: rx,
+                    y: ry,
+                    score: s,
+                });
+            }
+        }
+    }
+    let sc = &scratch.scores;
+    for cand in &scratch.cands {
+        let (x, y, s) = (cand.x, cand.y, cand.score);
+        let mut keep = true;
+        'n: for ny in y - 1..=y + 1 {
+            for nx in x - 1..=x + 1 {
+                if (nx, ny) != (x, y) && sc[ny * rw + nx] >= s {
+                    keep = false;
+                    break 'n;
+                }
+            }
+        }
+        if keep {
+            out.push(*cand);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(w: usize, h: usize, f: impl Fn(usize, usize) -> u8) -> Plane {
+        let mut data = vec![0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                data[y * w + x] = f(x, y);
+            }
+        }
+        Plane { w, h, data }
+    }
+
+    #[test]
+    fn bright_square_corner_detected_once() {
+        // A bright quadrant: its corner is a FAST corner (darker arc of > 9 pixels around it).
+        // Blurred so that the corner score has a unique maximum (equal scores suppress each
+        // other under the strict non-maximum test).
+        let sharp = plane(40, 40, |x, y| if x >= 20 && y >= 20 { 200 } else { 20 });
+        let img = super::super::imgproc::gaussian_blur(&sharp, 1, 0.8);
+        let mut s = FastScratch::default();
+        let mut out = Vec::new();
+        detect_roi(&img, (0, 0, 40, 40), 20, &mut s, &mut out);
+        assert!(!out.is_empty());
+        for c in &out {
+            assert!(
+                (18..=22).contains(&c.x) && (18..=22).contains(&c.y),
+                "{c:?}"
+            );
+            assert!(c.score >= 20);
+        }
+        // Non-max suppression leaves isolated corners only.
+        for a in &out {
+            for b in &out {
+                if a != b {
+                    assert!(a.x.abs_diff(b.x) > 1 || a.y.abs_diff(b.y) > 1);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn uniform_and_straight_edges_have_no_corners() {
+        let mut s = FastScratch::default();
+        let mut out = Vec::new();
+        detect_roi(
+            &plane(30, 30, |_, _| 90),
+            (0, 0, 30, 30),
+            7,
+            &mut s,
+            &mut out,
+        );
+        assert!(out.is_empty());
+        let edge = plane(30, 30, |x, _| if x < 15 { 0 } else { 255 });
+        detect_roi(&edge, (0, 0, 30, 30), 7, &mut s, &mut out);
+        assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn score_is_threshold_monotone() {
+        // An isolated bright dot: contrast 100, score must be 99 (largest passing threshold − 1).
+        let img = plane(15, 15, |x, y| if (x, y) == (7, 7) { 150 } else { 50 });
+        let mut s = FastScratch::default();
+        let mut out = Vec::new();
+        detect_roi(&img, (0, 0, 15, 15), 20, &mut s, &mut out);
+        assert_eq!(out.len(), 1);
+        assert_eq!((out[0].x, out[0].y, out[0].score), (7, 7, 99));
+        detect_roi(&img, (0, 0, 15, 15), 100, &mut s, &mut out);
+        assert!(out.is_empty());
+    }
+}

@@ -1,0 +1,498 @@
+//! Moving objects: articulated walking people (torso, head, two-segment arms and legs that
+//! swing with the gait), people who stand still and then walk, seated people who move only an
+//! arm, flying textured boxes and spheres, and an object passing close in front of the camera.
+//!
+//! Every mover returns the same number of parts at every time, each a [`Primitive`] posed in
+//! the world. Part `j` at time `t₁` and at `t₂` is the same rigid body, so the motion of any
+//! surface point between two frames is `pose₂ · pose₁⁻¹` — used for exact ground-truth flow
+//! and for the per-pixel "is moving" mask.
+
+use crate::shape::{Primitive, Shape};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use std::f32::consts::{FRAC_PI_2, PI, TAU};
+
+/// Materials of a person: shirt, trousers, skin/head.
+#[derive(Clone, Copy, Debug)]
+pub struct PersonLook {
+    /// Material of torso and upper arms.
+    pub shirt: usize,
+    /// Material of the legs.
+    pub trousers: usize,
+    /// Material of forearms.
+    pub skin: usize,
+    /// Material of the head (hair and face; one texture tile around the head).
+    pub head: usize,
+}
+
+/// A walking path on the floor.
+#[derive(Clone, Debug)]
+pub enum Path {
+    /// Walk from `a` to `b`, turn on the spot, walk back, turn, repeat.
+    PingPong {
+        /// Start point (x, y) on the floor.
+        a: [f32; 2],
+        /// End point (x, y).
+        b: [f32; 2],
+    },
+    /// Walk around an ellipse (counter-clockwise).
+    Ellipse {
+        /// Centre (x, y).
+        centre: [f32; 2],
+        /// Radii along x and y.
+        radii: [f32; 2],
+    },
+}
+
+/// What kind of motion a mover performs.
+#[derive(Clone, Debug)]
+pub enum MoverKind {
+    /// A person walking along `path` at `speed` m/s after standing still for `start_delay` s.
+    Walker {
+        /// The path.
+        path: Path,
+        /// Walking speed (m/s).
+        speed: f32,
+        /// Seconds of standing still before starting to walk.
+        start_delay: f32,
+        /// Time offset into the path (s), to desynchronise walkers.
+        offset: f32,
+    },
+    /// A seated person moving one arm (lifting a cup): `period` s per lift, resting `rest`
+    /// fraction of each period; everything else stays still.
+    Sitter {
+        /// Seat position (x, y) on the floor.
+        seat: [f32; 2],
+        /// Direction the person faces (radians, 0 = +x).
+        heading: f32,
+        /// Seconds per arm cycle.
+        period: f32,
+        /// Fraction of the cycle with the arm at rest.
+        rest: f32,
+        /// Phase offset (s).
+        offset: f32,
+    },
+    /// A rigid flying object on a smooth Lissajous path with constant spin.
+    Flyer {
+        /// Its shape.
+        shape: Shape,
+        /// Centre of the motion.
+        centre: Vector3<f32>,
+        /// Amplitudes along x, y, z (m).
+        amplitude: Vector3<f32>,
+        /// Angular frequencies (rad/s).
+        omega: Vector3<f32>,
+        /// Phases (rad).
+        phase: Vector3<f32>,
+        /// Spin axis (unit) and rate (rad/s).
+        spin: (Vector3<f32>, f32),
+    },
+    /// A rigid object that crosses from `a` to `b` in `cross` s, then stays out of view
+    /// until the `period` elapses (occlusion close to the camera).
+    Passer {
+        /// Its shape.
+        shape: Shape,
+        /// Start point.
+        a: Vector3<f32>,
+        /// End point.
+        b: Vector3<f32>,
+        /// Seconds per crossing.
+        cross: f32,
+        /// Seconds per cycle (≥ cross).
+        period: f32,
+        /// Phase offset (s).
+        offset: f32,
+    },
+}
+
+/// A mover: motion kind plus materials.
+#[derive(Clone, Debug)]
+pub struct Mover {
+    /// What it does.
+    pub kind: MoverKind,
+    /// People: the look; rigid objects use `look.shirt` as their material.
+    pub look: PersonLook,
+}
+
+/// Body dimensions (metres) shared by all people.
+mod body {
+    pub const HIP_Z: f32 = 0.9;
+    pub const HIP_X: f32 = 0.1;
+    pub const THIGH: f32 = 0.44;
+    pub const SHIN: f32 = 0.42;
+    pub const THIGH_R: f32 = 0.075;
+    pub const SHIN_R: f32 = 0.06;
+    pub const TORSO_HALF: [f32; 3] = [0.17, 0.1, 0.29];
+    pub const TORSO_Z: f32 = 0.29; // torso centre above the hips
+    pub const SHOULDER_X: f32 = 0.23;
+    pub const SHOULDER_Z: f32 = 0.5; // above the hips
+    pub const UPPER_ARM: f32 = 0.28;
+    pub const FOREARM: f32 = 0.27;
+    pub const ARM_R: f32 = 0.05;
+    pub const FOREARM_R: f32 = 0.043;
+    pub const HEAD_R: f32 = 0.115;
+    pub const HEAD_Z: f32 = 0.71; // above the hips
+    pub const STRIDE: f32 = 1.3; // metres per gait cycle
+    pub const SEAT_Z: f32 = 0.47;
+}
+
+/// Joint angles of a person (radians). Positive hip/shoulder angles swing the limb forward;
+/// positive knee angles bend the shin backwards, positive elbow angles bend the forearm forward.
+#[derive(Clone, Copy, Debug, Default)]
+struct Pose {
+    hip: [f32; 2],
+    knee: [f32; 2],
+    shoulder: [f32; 2],
+    shoulder_out: [f32; 2],
+    elbow: [f32; 2],
+}
+
+fn rot_x(a: f32) -> UnitQuaternion<f32> {
+    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), a)
+}
+
+fn rot_y(a: f32) -> UnitQuaternion<f32> {
+    UnitQuaternion::from_axis_angle(&Vector3::y_axis(), a)
+}
+
+fn iso(t: Vector3<f32>, r: UnitQuaternion<f32>) -> Isometry3<f32> {
+    Isometry3::from_parts(Translation3::from(t), r)
+}
+
+/// Two-segment limb hanging from `pivot` (body frame): returns the two capsule poses.
+fn limb(
+    pivot: Vector3<f32>,
+    r1: UnitQuaternion<f32>,
+    bend: UnitQuaternion<f32>,
+    l1: f32,
+    l2: f32,
+) -> (Isometry3<f32>, Isometry3<f32>) {
+    let down = Vector3::new(0.0, 0.0, -1.0);
+    let c1 = pivot + r1 * (down * (l1 * 0.5));
+    let joint = pivot + r1 * (down * l1);
+    let r2 = r1 * bend;
+    let c2 = joint + r2 * (down * (l2 * 0.5));
+    (iso(c1, r1), iso(c2, r2))
+}
+
+/// The ten parts of a person with body frame `body` (origin on the floor below the hips,
+/// +y forward, +z up) and hip height `hip_z`, legs either standing or seated.
+fn person_parts(
+    body_to_world: &Isometry3<f32>,
+    hip_z: f32,
+    p: &Pose,
+    look: &PersonLook,
+    out: &mut Vec<Primitive>,
+) {
+    use body::*;
+    let mut push = |shape: Shape, local: Isometry3<f32>, m: usize| {
+        out.push(Primitive::new(shape, body_to_world * local, m));
+    };
+    let hips = Vector3::new(0.0, 0.0, hip_z);
+    push(
+        Shape::Box {
+            half: Vector3::from(TORSO_HALF),
+        },
+        iso(
+            hips + Vector3::new(0.0, 0.0, TORSO_Z),
+            UnitQuaternion::identity(),
+        ),
+        look.shirt,
+    );
+    push(
+        Shape::Sphere { r: HEAD_R },
+        // Texture u = 0.5 (φ = ±π, local -x) must face forward (+y in the body frame).
+        iso(
+            hips + Vector3::new(0.0, 0.0, HEAD_Z),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -FRAC_PI_2),
+        ),
+        look.head,
+    );
+    for side in 0..2 {
+        let sx = if side == 0 { -1.0 } else { 1.0 };
+        let (a, b) = limb(
+            hips + Vector3::new(sx * HIP_X, 0.0, 0.0),
+            rot_x(p.hip[side]),
+            rot_x(-p.knee[side]),
+            THIGH,
+            SHIN,
+        );
+        push(
+            Shape::Capsule {
+                r: THIGH_R,
+                half_h: THIGH * 0.5,
+            },
+            a,
+            look.trousers,
+        );
+        push(
+            Shape::Capsule {
+                r: SHIN_R,
+                half_h: SHIN * 0.5,
+            },
+            b,
+            look.trousers,
+        );
+        let (a, b) = limb(
+            hips + Vector3::new(sx * SHOULDER_X, 0.0, SHOULDER_Z),
+            rot_y(-sx * p.shoulder_out[side]) * rot_x(p.shoulder[side]),
+            rot_x(p.elbow[side]),
+            UPPER_ARM,
+            FOREARM,
+        );
+        push(
+            Shape::Capsule {
+                r: ARM_R,
+                half_h: UPPER_ARM * 0.5,
+            },
+            a,
+            look.shirt,
+        );
+        push(
+            Shape::Capsule {
+                r: FOREARM_R,
+                half_h: FOREARM * 0.5,
+            },
+            b,
+            look.skin,
+        );
+    }
+}
+
+/// Walking gait at phase `phi` (radians; one cycle per stride), amplitude scaled by `amp`.
+fn gait(phi: f32, amp: f32) -> Pose {
+    let hip_a = 0.42 * amp;
+    let s = phi.sin();
+    let c = phi.cos();
+    Pose {
+        hip: [hip_a * s, -hip_a * s],
+        // The knee bends while the leg swings forward.
+        knee: [
+            0.08 + 0.6 * amp * c.max(0.0),
+            0.08 + 0.6 * amp * (-c).max(0.0),
+        ],
+        shoulder: [-0.35 * amp * s, 0.35 * amp * s],
+        shoulder_out: [0.06, 0.06],
+        elbow: [
+            0.2 + 0.15 * amp * (-s).max(0.0),
+            0.2 + 0.15 * amp * s.max(0.0),
+        ],
+    }
+}
+
+/// Body pose on a path: floor position, heading (radians, direction of +y body axis) and
+/// distance walked so far (for the gait phase). `tw` is the walking time.
+fn on_path(path: &Path, speed: f32, tw: f32) -> ([f32; 2], f32, f32, f32) {
+    match *path {
+        Path::PingPong { a, b } => {
+            let dx = b[0] - a[0];
+            let dy = b[1] - a[1];
+            let len = dx.hypot(dy).max(1e-3);
+            // Whole number of strides per leg so that the turns start with both feet together.
+            let strides = (len / body::STRIDE).round().max(1.0);
+            let stride = len / strides;
+            let walk = len / speed;
+            let turn = 1.0;
+            let cycle = 2.0 * (walk + turn);
+            let tc = tw.rem_euclid(cycle);
+            let fwd = dy.atan2(dx);
+            let back = fwd + PI;
+            // (position, heading, distance walked this cycle, gait amplitude)
+            let (pos, head, dist, amp) = if tc < walk {
+                let f = tc / walk;
+                ([a[0] + dx * f, a[1] + dy * f], fwd, tc * speed, 1.0)
+            } else if tc < walk + turn {
+                let f = (tc - walk) / turn;
+                let e = f * f * (3.0 - 2.0 * f);
+                (b, fwd + PI * e, len, 0.0)
+            } else if tc < 2.0 * walk + turn {
+                let f = (tc - walk - turn) / walk;
+                (
+                    [b[0] - dx * f, b[1] - dy * f],
+                    back,
+                    len + (tc - walk - turn) * speed,
+                    1.0,
+                )
+            } else {
+                let f = (tc - 2.0 * walk - turn) / turn;
+                let e = f * f * (3.0 - 2.0 * f);
+                (a, back + PI * e, 2.0 * len, 0.0)
+            };
+            (pos, head, TAU * dist / stride, amp)
+        }
+        Path::Ellipse { centre, radii } => {
+            let circ = PI
+                * (3.0 * (radii[0] + radii[1])
+                    - ((3.0 * radii[0] + radii[1]) * (radii[0] + 3.0 * radii[1])).sqrt());
+            let strides = (circ / body::STRIDE).round().max(1.0);
+            let theta = TAU * (tw * speed / circ);
+            let pos = [
+                centre[0] + radii[0] * theta.cos(),
+                centre[1] + radii[1] * theta.sin(),
+            ];
+            let head = (radii[1] * theta.cos()).atan2(-radii[0] * theta.sin());
+            (pos, head, theta * strides, 1.0)
+        }
+    }
+}
+
+fn body_frame(pos: [f32; 2], heading: f32) -> Isometry3<f32> {
+    // Body +y must point along `heading`, so rotate by heading - 90°.
+    iso(
+        Vector3::new(pos[0], pos[1], 0.0),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading - FRAC_PI_2),
+    )
+}
+
+impl Mover {
+    /// Number of parts this mover has at any time.
+    pub fn part_count(&self) -> usize {
+        match self.kind {
+            MoverKind::Walker { .. } | MoverKind::Sitter { .. } => 10,
+            MoverKind::Flyer { .. } | MoverKind::Passer { .. } => 1,
+        }
+    }
+
+    /// Appends the world-posed parts at time `t` (seconds) to `out`.
+    pub fn parts(&self, t: f32, out: &mut Vec<Primitive>) {
+        match &self.kind {
+            MoverKind::Walker {
+                path,
+                speed,
+                start_delay,
+                offset,
+            } => {
+                let tw = (t - start_delay).max(0.0) + offset;
+                let (pos, heading, phi, amp) = on_path(path, *speed, tw);
+                let pose = gait(phi, amp);
+                let bob = 0.015 * amp * (2.0 * phi).cos().abs();
+                let mut body = body_frame(pos, heading);
+                body.translation.vector.z += bob - 0.015 * amp;
+                person_parts(&body, body::HIP_Z, &pose, &self.look, out);
+            }
+            MoverKind::Sitter {
+                seat,
+                heading,
+                period,
+                rest,
+                offset,
+            } => {
+                let tc = ((t + offset) / period).rem_euclid(1.0);
+                let active = 1.0 - rest;
+                // Smooth lift 0→1→0 during the active part of the cycle, still otherwise.
+                let lift = if tc < active {
+                    let f = tc / active;
+                    (PI * f).sin().powi(2)
+                } else {
+                    0.0
+                };
+                let pose = Pose {
+                    hip: [FRAC_PI_2, FRAC_PI_2],
+                    knee: [FRAC_PI_2, FRAC_PI_2],
+                    shoulder: [0.15 + 0.9 * lift, 0.25],
+                    shoulder_out: [0.1, 0.12],
+                    elbow: [0.5 + 1.4 * lift, 0.9],
+                };
+                let body = body_frame(*seat, *heading);
+                person_parts(&body, body::SEAT_Z + body::THIGH_R, &pose, &self.look, out);
+            }
+            MoverKind::Flyer {
+                shape,
+                centre,
+                amplitude,
+                omega,
+                phase,
+                spin,
+            } => {
+                let p = Vector3::new(
+                    centre.x + amplitude.x * (omega.x * t + phase.x).sin(),
+                    centre.y + amplitude.y * (omega.y * t + phase.y).sin(),
+                    centre.z + amplitude.z * (omega.z * t + phase.z).sin(),
+                );
+                let r = UnitQuaternion::from_axis_angle(
+                    &nalgebra::Unit::new_normalize(spin.0),
+                    spin.1 * t,
+                );
+                out.push(Primitive::new(*shape, iso(p, r), self.look.shirt));
+            }
+            MoverKind::Passer {
+                shape,
+                a,
+                b,
+                cross,
+                period,
+                offset,
+            } => {
+                let tc = (t + offset).rem_euclid(*period);
+                let f = (tc / cross).clamp(0.0, 1.0);
+                let p = a + (b - a) * f;
+                let r = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.6 * f);
+                out.push(Primitive::new(*shape, iso(p, r), self.look.shirt));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn look() -> PersonLook {
+        PersonLook {
+            shirt: 0,
+            trousers: 1,
+            skin: 2,
+            head: 3,
+        }
+    }
+
+    #[test]
+    fn walker_feet_stay_near_floor_and_part_count_is_constant() {
+        let m = Mover {
+            kind: MoverKind::Walker {
+                path: Path::PingPong {
+                    a: [-1.0, 0.5],
+                    b: [1.0, 0.5],
+                },
+                speed: 0.8,
+                start_delay: 0.0,
+                offset: 0.0,
+            },
+            look: look(),
+        };
+        for i in 0..200 {
+            let mut parts = Vec::new();
+            m.parts(i as f32 / 30.0, &mut parts);
+            assert_eq!(parts.len(), m.part_count());
+            // Lowest point of the shins (parts 3 and 7) is within a few cm of the floor.
+            let lowest = parts
+                .iter()
+                .flat_map(|p| p.world_corners())
+                .map(|c| c.z)
+                .fold(f32::INFINITY, f32::min);
+            assert!(lowest > -0.12 && lowest < 0.1, "frame {i}: lowest {lowest}");
+        }
+    }
+
+    #[test]
+    fn sitter_moves_only_the_arm() {
+        let m = Mover {
+            kind: MoverKind::Sitter {
+                seat: [0.0, 0.0],
+                heading: 0.0,
+                period: 4.0,
+                rest: 0.3,
+                offset: 0.0,
+            },
+            look: look(),
+        };
+        let mut a = Vec::new();
+        let mut b = Vec::new();
+        m.parts(0.5, &mut a);
+        m.parts(0.6, &mut b);
+        let moved: Vec<usize> = (0..a.len())
+            .filter(|&j| (a[j].pose.to_homogeneous() - b[j].pose.to_homogeneous()).norm() > 1e-6)
+            .collect();
+        // Parts 4, 5 are the upper arm and forearm of the first side.
+        assert_eq!(moved, vec![4, 5]);
+    }
+}

@@ -1,0 +1,252 @@
+//! Camera motions shaped like the TUM RGB-D walking sequences (`xyz`, `rpy`, `halfsphere`,
+//! `static`), smooth random hand-held motion and a closed loop through the room. Poses are
+//! camera-to-world (camera: x right, y down, z forward), smooth functions of time with
+//! realistic speeds (≤ 0.5 m/s, ≤ 40°/s; checked by a test).
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::f64::consts::{PI, TAU};
+
+/// A base viewpoint: camera position and the point it looks at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rig {
+    /// Camera centre (world).
+    pub eye: Point3<f64>,
+    /// Point the optical axis goes through.
+    pub target: Point3<f64>,
+}
+
+impl Default for Rig {
+    fn default() -> Self {
+        Self {
+            eye: Point3::new(0.0, -1.5, 1.35),
+            target: Point3::new(0.1, 1.3, 0.9),
+        }
+    }
+}
+
+/// Rotation (camera-to-world) of a camera at `eye` looking at `target`, world z up.
+pub fn look_at(eye: &Point3<f64>, target: &Point3<f64>) -> UnitQuaternion<f64> {
+    let f = (target - eye).normalize();
+    let mut x = f.cross(&Vector3::z());
+    if x.norm() < 1e-9 {
+        x = Vector3::x();
+    }
+    let x = x.normalize();
+    let y = f.cross(&x);
+    let m = Matrix3::from_columns(&[x, y, f]);
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m))
+}
+
+/// Kind of camera motion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MotionKind {
+    /// Nearly static camera: a few millimetres and tenths of a degree of jitter.
+    Static,
+    /// Translation oscillating along x, y and z (±0.3 m), fixed orientation.
+    Xyz,
+    /// Rotation about roll, pitch and yaw (±15–20°) at a fixed position.
+    Rpy,
+    /// On a half sphere of ~1 m diameter behind the base position, looking at the target.
+    Halfsphere,
+    /// Smooth random hand-held motion.
+    Handheld,
+    /// A closed loop through the room that returns to the start after `period` seconds.
+    Loop,
+}
+
+/// A camera motion: kind, base rig, random phases (from the seed) and loop period.
+#[derive(Clone, Debug)]
+pub struct CameraMotion {
+    /// Motion kind.
+    pub kind: MotionKind,
+    /// Base viewpoint.
+    pub rig: Rig,
+    /// Loop period in seconds (only [`MotionKind::Loop`]).
+    pub loop_period: f64,
+    /// Random sinusoid components: per channel (x, y, z, target x/y/z, roll) lists of
+    /// (amplitude, angular frequency, phase).
+    waves: Vec<Vec<(f64, f64, f64)>>,
+}
+
+fn waves(rng: &mut ChaCha8Rng, n: usize, amp: f64, f_lo: f64, f_hi: f64) -> Vec<(f64, f64, f64)> {
+    (0..n)
+        .map(|k| {
+            let a = amp / (k as f64 + 1.0);
+            let f = rng.random_range(f_lo..f_hi);
+            (a, TAU * f, rng.random_range(0.0..TAU))
+        })
+        .collect()
+}
+
+fn eval(w: &[(f64, f64, f64)], t: f64) -> f64 {
+    w.iter().map(|&(a, om, ph)| a * (om * t + ph).sin()).sum()
+}
+
+impl CameraMotion {
+    /// A motion of `kind` around `rig`, random parts drawn from `seed`.
+    pub fn new(kind: MotionKind, rig: Rig, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xCA3E_7A00_0000_0002);
+        let waves = match kind {
+            // Jitter: millimetres and tenths of a degree, frequencies of a hand at rest.
+            MotionKind::Static => (0..7)
+                .map(|c| {
+                    let amp = if c < 3 {
+                        0.003
+                    } else if c < 6 {
+                        0.006
+                    } else {
+                        0.004
+                    };
+                    waves(&mut rng, 3, amp, 0.2, 1.2)
+                })
+                .collect(),
+            MotionKind::Handheld => (0..7)
+                .map(|c| {
+                    let amp = if c < 3 {
+                        0.16
+                    } else if c < 6 {
+                        0.35
+                    } else {
+                        0.05
+                    };
+                    waves(&mut rng, 3, amp, 0.04, 0.18)
+                })
+                .collect(),
+            // Deterministic shapes get small random wobble only.
+            _ => (0..7)
+                .map(|c| {
+                    let amp = if c < 3 {
+                        0.01
+                    } else if c < 6 {
+                        0.02
+                    } else {
+                        0.01
+                    };
+                    waves(&mut rng, 2, amp, 0.1, 0.5)
+                })
+                .collect(),
+        };
+        Self {
+            kind,
+            rig,
+            loop_period: 24.0,
+            waves,
+        }
+    }
+
+    /// Camera-to-world pose at time `t` (seconds).
+    pub fn pose(&self, t: f64) -> Isometry3<f64> {
+        let w = |c: usize| eval(&self.waves[c], t);
+        let wobble_eye = Vector3::new(w(0), w(1), w(2));
+        let wobble_tgt = Vector3::new(w(3), w(4), w(5));
+        let roll_w = w(6);
+        let rig = self.rig;
+        let (eye, rot) = match self.kind {
+            MotionKind::Static | MotionKind::Handheld => {
+                let eye = rig.eye + wobble_eye;
+                let r = look_at(&eye, &(rig.target + wobble_tgt));
+                (
+                    eye,
+                    r * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), roll_w),
+                )
+            }
+            MotionKind::Xyz => {
+                let off = Vector3::new(
+                    0.3 * (TAU * t / 7.0).sin(),
+                    0.25 * (TAU * t / 9.0 + 1.0).sin(),
+                    0.2 * (TAU * t / 5.5 + 2.0).sin(),
+                );
+                let eye = rig.eye + off + wobble_eye;
+                (eye, look_at(&rig.eye, &rig.target))
+            }
+            MotionKind::Rpy => {
+                let roll = 15f64.to_radians() * (TAU * t / 6.0).sin();
+                let pitch = 15f64.to_radians() * (TAU * t / 7.5 + 0.7).sin();
+                let yaw = 20f64.to_radians() * (TAU * t / 9.0 + 1.9).sin();
+                let base = look_at(&rig.eye, &rig.target);
+                // Camera frame: roll about z (optical axis), pitch about x, yaw about y (down).
+                let r = base * UnitQuaternion::from_euler_angles(pitch, yaw, roll);
+                (rig.eye + wobble_eye, r)
+            }
+            MotionKind::Halfsphere => {
+                let radius = 0.5;
+                let az = 60f64.to_radians() * (TAU * t / 10.0).sin();
+                let el = 25f64.to_radians() + 25f64.to_radians() * (TAU * t / 7.0 + 0.5).sin();
+                let back = (rig.eye - rig.target).normalize();
+                let side = Vector3::z().cross(&back).normalize();
+                let up = back.cross(&side);
+                let dir =
+                    back * (az.cos() * el.cos()) + side * (az.sin() * el.cos()) + up * el.sin();
+                // Sphere centre ahead of the base eye so the camera stays clear of the wall behind.
+                let eye = rig.eye - back * 0.4 + dir * radius + wobble_eye;
+                (eye, look_at(&eye, &(rig.target + wobble_tgt)))
+            }
+            MotionKind::Loop => {
+                // Ellipse around the room centre, looking at a point that runs ahead of the
+                // camera on a larger ellipse, so the view sweeps all walls once per loop.
+                let th = TAU * t / self.loop_period - PI / 2.0;
+                let c = Vector3::new(0.2, 0.1, 1.35);
+                let eye = Point3::from(
+                    c + Vector3::new(0.9 * th.cos(), 0.6 * th.sin(), 0.08 * (2.0 * th).sin()),
+                );
+                let ta = th + 2.2;
+                let target = Point3::new(0.2 + 2.0 * ta.cos(), 0.3 + 1.8 * ta.sin(), 0.9);
+                (
+                    eye + wobble_eye * 0.5,
+                    look_at(&eye, &(target + wobble_tgt)),
+                )
+            }
+        };
+        Isometry3::from_parts(Translation3::from(eye.coords), rot)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn speeds_are_realistic_and_loop_closes() {
+        let dt = 1.0 / 30.0;
+        for kind in [
+            MotionKind::Static,
+            MotionKind::Xyz,
+            MotionKind::Rpy,
+            MotionKind::Halfsphere,
+            MotionKind::Handheld,
+            MotionKind::Loop,
+        ] {
+            for seed in 0..3 {
+                let m = CameraMotion::new(kind, Rig::default(), seed);
+                let mut max_v: f64 = 0.0;
+                let mut max_w: f64 = 0.0;
+                for i in 0..900 {
+                    let a = m.pose(i as f64 * dt);
+                    let b = m.pose((i + 1) as f64 * dt);
+                    let d = a.inverse() * b;
+                    max_v = max_v.max(d.translation.vector.norm() / dt);
+                    max_w = max_w.max(d.rotation.angle().to_degrees() / dt);
+                    // The camera stays inside the room, away from walls.
+                    let p = a.translation.vector;
+                    assert!(
+                        p.x.abs() < 2.3 && p.y > -1.9 && p.y < 2.2 && p.z > 0.5 && p.z < 2.4,
+                        "{kind:?} {p:?}"
+                    );
+                }
+                assert!(max_v <= 0.5, "{kind:?}: {max_v} m/s");
+                assert!(max_w <= 40.0, "{kind:?}: {max_w} deg/s");
+                if kind == MotionKind::Static {
+                    assert!(
+                        max_v < 0.05 && max_w < 5.0,
+                        "static too fast: {max_v} {max_w}"
+                    );
+                }
+            }
+        }
+        let m = CameraMotion::new(MotionKind::Loop, Rig::default(), 1);
+        let d = m.pose(0.0).inverse() * m.pose(m.loop_period);
+        assert!(d.translation.vector.norm() < 0.05 && d.rotation.angle() < 0.05);
+    }
+}

@@ -1,0 +1,117 @@
+#!/usr/bin/env python3
+"""Compare dynapix's DIS optical flow with OpenCV's DIS at the same preset.
+
+Pairs with known flow are made from real TUM frames (../shared/data) by the Rust example
+`flow_eval`, which also runs our DIS and records its timings; this script runs OpenCV's
+`DISOpticalFlow` (PyPI `opencv-python-headless`) on the same pairs and prints, per pair and
+preset, the average end-point error (EPE), the share of pixels with error > 1 px and > 3 px
+(pixels whose ground-truth match lies inside the image) and the best / median time of
+`--repeat` runs, side by side.
+
+Setup (once):
+    python3 -m venv /tmp/flowvenv && /tmp/flowvenv/bin/pip install opencv-python-headless numpy
+Run from the workspace root:
+    /tmp/flowvenv/bin/python scripts/compare-flow-opencv.py [--repeat 10] [--out DIR] [--markdown]
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import cv2
+import numpy as np
+
+PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+           "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+           "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+
+
+def read_flo(path):
+    with open(path, "rb") as f:
+        magic = np.fromfile(f, np.float32, 1)
+        if magic.size != 1 or magic[0] != 202021.25:
+            raise ValueError(f"{path}: not a .flo file")
+        w, h = np.fromfile(f, np.int32, 2)
+        data = np.fromfile(f, np.float32, 2 * w * h)
+    if data.size != 2 * w * h:
+        raise ValueError(f"{path}: truncated")
+    return data.reshape(h, w, 2)
+
+
+def visible_mask(gt):
+    h, w = gt.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w]
+    tx, ty = xs + gt[..., 0], ys + gt[..., 1]
+    return (tx >= 0) & (ty >= 0) & (tx <= w - 1) & (ty <= h - 1)
+
+
+def stats(flow, gt, mask):
+    e = np.linalg.norm(flow - gt, axis=2)[mask]
+    return e.mean(), 100.0 * (e > 1).mean(), 100.0 * (e > 3).mean()
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=10, help="timed runs per pair and method")
+    ap.add_argument("--out", help="folder for the pairs and flows (default: a temporary folder)")
+    ap.add_argument("--presets", default="ultrafast,fast,medium")
+    ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    args = ap.parse_args()
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = args.out or tempfile.mkdtemp(prefix="dynapix-flow-")
+    presets = args.presets.split(",")
+    cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "flow_eval",
+           "--", out, *presets, "--repeat", str(args.repeat)]
+    print("running:", " ".join(cmd), file=sys.stderr)
+    subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL)
+    with open(os.path.join(out, "ours.json")) as f:
+        ours = json.load(f)
+
+    print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads; pairs in {out}", file=sys.stderr)
+    rows = []
+    for case in ours:
+        d = os.path.join(out, case)
+        a = cv2.imread(os.path.join(d, "a.png"), cv2.IMREAD_GRAYSCALE)
+        b = cv2.imread(os.path.join(d, "b.png"), cv2.IMREAD_GRAYSCALE)
+        gt = read_flo(os.path.join(d, "gt.flo"))
+        mask = visible_mask(gt)
+        for p in presets:
+            dis = cv2.DISOpticalFlow_create(PRESETS[p])
+            times = []
+            flow = None
+            for _ in range(max(1, args.repeat)):
+                t = time.perf_counter()
+                flow = dis.calc(a, b, None)
+                times.append(1e3 * (time.perf_counter() - t))
+            times.sort()
+            cv_s = stats(flow, gt, mask)
+            our_flow = read_flo(os.path.join(d, f"ours_{p}.flo"))
+            our_s = stats(our_flow, gt, mask)
+            o = ours[case][p]
+            rows.append((case, p, our_s, (o["best_ms"], o["median_ms"]), cv_s,
+                         (times[0], times[len(times) // 2])))
+
+    if args.markdown:
+        print("| pair | preset | EPE ours | EPE OpenCV | >1px ours | >1px OpenCV | >3px ours | >3px OpenCV "
+              "| best/median ms ours | best/median ms OpenCV |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for case, p, s, t, c, ct in rows:
+            print(f"| {case} | {p} | {s[0]:.3f} | {c[0]:.3f} | {s[1]:.2f} % | {c[1]:.2f} % | {s[2]:.2f} % "
+                  f"| {c[2]:.2f} % | {t[0]:.1f} / {t[1]:.1f} | {ct[0]:.1f} / {ct[1]:.1f} |")
+    else:
+        hdr = (f"{'pair':18} {'preset':9} | {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6} "
+               f"| {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6}")
+        print(f"{'':28} | {'dynapix DIS':^38} | {'OpenCV DIS':^38}")
+        print(hdr)
+        for case, p, s, t, c, ct in rows:
+            print(f"{case:18} {p:9} | {s[0]:6.3f} {s[1]:6.2f} {s[2]:6.2f} {t[0]:6.1f} {t[1]:6.1f} "
+                  f"| {c[0]:6.3f} {c[1]:6.2f} {c[2]:6.2f} {ct[0]:6.1f} {ct[1]:6.1f}")
+
+
+if __name__ == "__main__":
+    main()
