@@ -339,27 +339,26 @@ fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
 impl BuildEnv<'_> {
     /// Fills both colours' systems, rows in parallel.
     fn fill_all(&self, sys: &mut [RbSystem; 2]) {
-        let (st, h) = (self.lay.stride, self.lay.h);
+        let (st, h, w) = (self.lay.stride, self.lay.h, self.lay.w);
         let [s0, s1] = sys;
-        let mut jobs: Vec<(usize, usize, RowMut<'_>)> = Vec::with_capacity(2 * h);
-        jobs.extend(
-            rows_mut(s0, st, h)
-                .into_iter()
-                .enumerate()
-                .map(|(y, r)| (0, y, r)),
+        let mut jobs: Vec<(RowMut<'_>, RowMut<'_>)> = rows_mut(s0, st, h)
+            .into_iter()
+            .zip(rows_mut(s1, st, h))
+            .collect();
+        jobs.par_iter_mut().enumerate().for_each_init(
+            || vec![0.0f32; 5 * w],
+            |scratch, (y, (r0, r1))| {
+                self.data_row(y, scratch);
+                self.fill_row(0, y, r0, scratch);
+                self.fill_row(1, y, r1, scratch);
+            },
         );
-        jobs.extend(
-            rows_mut(s1, st, h)
-                .into_iter()
-                .enumerate()
-                .map(|(y, r)| (1, y, r)),
-        );
-        jobs.par_iter_mut()
-            .for_each(|(colour, y, row)| self.fill_row(*colour, *y, row));
     }
 
-    fn fill_row(&self, colour: usize, y: usize, s: &mut RowMut<'_>) {
-        let (w, h) = (self.lay.w, self.lay.h);
+    /// Data-term blocks (a11, a12, a22, b1, b2) of row y, contiguous so the robust weights
+    /// (square roots, divisions) vectorise.
+    fn data_row(&self, y: usize, out: &mut [f32]) {
+        let w = self.lay.w;
         let z2 = self.p.zeta * self.p.zeta;
         let eps2 = self.p.epsilon * self.p.epsilon;
         let (delta2, gamma2) = (0.5 * self.p.delta, 0.5 * self.p.gamma);
@@ -373,7 +372,39 @@ impl BuildEnv<'_> {
         let (gxx, gxy, gxz) = (row(&d.gxx), row(&d.gxy), row(&d.gxz));
         let (gyx, gyy, gyz) = (row(&d.gyx), row(&d.gyy), row(&d.gyz));
         let (du, dv) = (row(&self.du.data), row(&self.dv.data));
-        let (u, v, ws) = (row(&self.u.data), row(&self.v.data), row(&self.ws.data));
+        let (a11, rest) = out.split_at_mut(w);
+        let (a12, rest) = rest.split_at_mut(w);
+        let (a22, rest) = rest.split_at_mut(w);
+        let (b1, b2) = rest.split_at_mut(w);
+        let b2 = &mut b2[..w];
+        for x in 0..w {
+            let (ddu, ddv) = (du[x], dv[x]);
+            // Brightness constancy (normalised), robust weight from the current increment.
+            let r = bz[x] + bx[x] * ddu + by[x] * ddv;
+            let wi = delta2 / (r * r + eps2).sqrt();
+            // Gradient constancy.
+            let rx = gxz[x] + gxx[x] * ddu + gxy[x] * ddv;
+            let ry = gyz[x] + gyx[x] * ddu + gyy[x] * ddv;
+            let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
+            a11[x] = wi * bx[x] * bx[x] + wg * (gxx[x] * gxx[x] + gyx[x] * gyx[x]) + z2;
+            a12[x] = wi * bx[x] * by[x] + wg * (gxx[x] * gxy[x] + gyx[x] * gyy[x]);
+            a22[x] = wi * by[x] * by[x] + wg * (gxy[x] * gxy[x] + gyy[x] * gyy[x]) + z2;
+            b1[x] = -wi * bz[x] * bx[x] - wg * (gxx[x] * gxz[x] + gyx[x] * gyz[x]);
+            b2[x] = -wi * bz[x] * by[x] - wg * (gxy[x] * gxz[x] + gyy[x] * gyz[x]);
+        }
+    }
+
+    /// Scatters row y of one colour into its system, adding the smoothness terms.
+    fn fill_row(&self, colour: usize, y: usize, s: &mut RowMut<'_>, data: &[f32]) {
+        let (w, h) = (self.lay.w, self.lay.h);
+        let o = y * w;
+        let (u, v, ws) = (
+            &self.u.data[o..o + w],
+            &self.v.data[o..o + w],
+            &self.ws.data[o..o + w],
+        );
+        let (a11, a12, a22) = (&data[..w], &data[w..2 * w], &data[2 * w..3 * w]);
+        let (b1, b2) = (&data[3 * w..4 * w], &data[4 * w..5 * w]);
         // Neighbour rows (the row itself at the border, where the weight is zero anyway).
         let up = if y > 0 { o - w } else { o };
         let dn = if y + 1 < h { o + w } else { o };
@@ -384,19 +415,6 @@ impl BuildEnv<'_> {
         for k in 0..len {
             let x = x0 + 2 * k;
             let j = k + 1;
-            let (ddu, ddv) = (du[x], dv[x]);
-            // Brightness constancy (normalised), robust weight from the current increment.
-            let r = bz[x] + bx[x] * ddu + by[x] * ddv;
-            let wi = delta2 / (r * r + eps2).sqrt();
-            // Gradient constancy.
-            let rx = gxz[x] + gxx[x] * ddu + gxy[x] * ddv;
-            let ry = gyz[x] + gyx[x] * ddu + gyy[x] * ddv;
-            let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
-            let a11 = wi * bx[x] * bx[x] + wg * (gxx[x] * gxx[x] + gyx[x] * gyx[x]) + z2;
-            let a12 = wi * bx[x] * by[x] + wg * (gxx[x] * gxy[x] + gyx[x] * gyy[x]);
-            let a22 = wi * by[x] * by[x] + wg * (gxy[x] * gxy[x] + gyy[x] * gyy[x]) + z2;
-            let b1 = -wi * bz[x] * bx[x] - wg * (gxx[x] * gxz[x] + gyx[x] * gyz[x]);
-            let b2 = -wi * bz[x] * by[x] - wg * (gxy[x] * gxz[x] + gyy[x] * gyz[x]);
             // Smoothness: edge weights (zero across the image border) and the base flow's
             // differences to the neighbours on the right-hand side.
             let xl = x.saturating_sub(1);
@@ -416,11 +434,11 @@ impl BuildEnv<'_> {
             let sum = wl + wr + wu + wd;
             // Raw weight even at the border: the sweeps multiply it by the zero padding.
             s.ws[j] = ws[x];
-            s.ru[j] = b1 + su;
-            s.rv[j] = b2 + sv;
-            s.a12[j] = a12;
-            s.inv11[j] = 1.0 / (a11 + sum);
-            s.inv22[j] = 1.0 / (a22 + sum);
+            s.ru[j] = b1[x] + su;
+            s.rv[j] = b2[x] + sv;
+            s.a12[j] = a12[x];
+            s.inv11[j] = 1.0 / (a11[x] + sum);
+            s.inv22[j] = 1.0 / (a22[x] + sum);
         }
     }
 }
