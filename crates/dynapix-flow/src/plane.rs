@@ -66,6 +66,37 @@ impl Plane {
         top + fy * (bot - top)
     }
 
+    /// [`Plane::downsample2`] of an 8-bit image, without a full-resolution float copy.
+    pub fn downsample2_gray(img: &image::GrayImage) -> Self {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let src = img.as_raw();
+        let nw = (w / 2).max(1);
+        let nh = (h / 2).max(1);
+        let mut out = Plane::zeros(nw, nh);
+        if w == 0 || h == 0 {
+            return out;
+        }
+        out.data
+            .par_chunks_mut(nw)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let y0 = (2 * y).min(h - 1);
+                let y1 = (2 * y + 1).min(h - 1);
+                let r0 = &src[y0 * w..(y0 + 1) * w];
+                let r1 = &src[y1 * w..(y1 + 1) * w];
+                for (x, o) in row.iter_mut().enumerate() {
+                    let x0 = (2 * x).min(w - 1);
+                    let x1 = (2 * x + 1).min(w - 1);
+                    let s = u16::from(r0[x0])
+                        + u16::from(r0[x1])
+                        + u16::from(r1[x0])
+                        + u16::from(r1[x1]);
+                    *o = 0.25 * f32::from(s);
+                }
+            });
+        out
+    }
+
     /// Halves the resolution by averaging 2×2 blocks (an odd last row/column is dropped, like
     /// an area resize to `w/2 × h/2`). Sizes never go below 1.
     pub fn downsample2(&self) -> Plane {
@@ -206,6 +237,52 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
             }
         });
     (ou, ov)
+}
+
+/// [`resize_flow`] into interleaved `[u, v]` vectors (the layout of `FlowField`).
+pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Vec<[f32; 2]> {
+    let mut out = vec![[0.0f32; 2]; dw * dh];
+    if dw == 0 || dh == 0 || u.w == 0 || u.h == 0 {
+        return out;
+    }
+    let sx = u.w as f32 / dw as f32;
+    let sy = u.h as f32 / dh as f32;
+    let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+        (0..n_dst)
+            .map(|d| {
+                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                let i0 = p as usize;
+                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+            })
+            .collect()
+    };
+    let cols = taps(dw, u.w, sx);
+    let rows = taps(dh, u.h, sy);
+    let sw = u.w;
+    out.par_chunks_mut(dw)
+        .zip(rows.par_iter())
+        .for_each(|(row, &(y0, y1, fy))| {
+            let (u0, u1) = (
+                &u.data[y0 * sw..(y0 + 1) * sw],
+                &u.data[y1 * sw..(y1 + 1) * sw],
+            );
+            let (v0, v1) = (
+                &v.data[y0 * sw..(y0 + 1) * sw],
+                &v.data[y1 * sw..(y1 + 1) * sw],
+            );
+            for (o, &(x0, x1, fx)) in row.iter_mut().zip(&cols) {
+                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                *o = [
+                    (tu + fy * (bu - tu)) * scale_u,
+                    (tv + fy * (bv - tv)) * scale_v,
+                ];
+            }
+        });
+    out
 }
 
 /// Backward warp: `out(x) = src(x + (u, v)(x))`, bilinear with replicated border.
