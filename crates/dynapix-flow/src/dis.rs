@@ -16,7 +16,7 @@
 //!
 //! The flow of the finest computed level is bilinearly upsampled to the input size.
 
-use crate::plane::{Plane, resize_flow, resize_flow_interleaved};
+use crate::plane::{Plane, min_rows, resize_flow, resize_flow_interleaved};
 use crate::variational::{VariationalParams, refine};
 use crate::{FlowError, FlowField, FlowProvider};
 use image::GrayImage;
@@ -766,6 +766,7 @@ fn densify(
         .par_chunks_mut(w)
         .zip(v.data.par_chunks_mut(w))
         .enumerate()
+        .with_min_len(min_rows(w))
         .for_each_init(
             || vec![0.0f32; w],
             |wsum, (y, (ru, rv))| {

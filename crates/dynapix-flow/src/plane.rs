@@ -7,6 +7,16 @@
 
 use rayon::prelude::*;
 
+/// Smallest amount of per-pixel work (pixels) worth a rayon task: below it, task overhead
+/// dominates (coarse pyramid levels are tiny).
+pub(crate) const MIN_PAR_PIXELS: usize = 4096;
+
+/// Minimum number of rows of width `w` per rayon task.
+#[inline]
+pub(crate) fn min_rows(w: usize) -> usize {
+    (MIN_PAR_PIXELS / w.max(1)).max(1)
+}
+
 /// A row-major single-channel `f32` image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plane {
@@ -79,6 +89,7 @@ impl Plane {
         out.data
             .par_chunks_mut(nw)
             .enumerate()
+            .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
                 let y0 = (2 * y).min(h - 1);
                 let y1 = (2 * y + 1).min(h - 1);
@@ -106,6 +117,7 @@ impl Plane {
         out.data
             .par_chunks_mut(nw)
             .enumerate()
+            .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
                 let y0 = (2 * y).min(self.h - 1);
                 let y1 = (2 * y + 1).min(self.h - 1);
@@ -129,6 +141,7 @@ impl Plane {
             .par_chunks_mut(w)
             .zip(gy.data.par_chunks_mut(w))
             .enumerate()
+            .with_min_len(min_rows(w))
             .for_each(|(y, (rx, ry))| {
                 let ym = y.saturating_sub(1);
                 let yp = (y + 1).min(h - 1);
@@ -156,6 +169,7 @@ impl Plane {
             .par_chunks_mut(w)
             .zip(gy.data.par_chunks_mut(w))
             .enumerate()
+            .with_min_len(min_rows(w))
             .for_each(|(y, (rx, ry))| {
                 let ym = y.saturating_sub(1);
                 let yp = (y + 1).min(h - 1);
@@ -180,6 +194,7 @@ impl Plane {
         out.data
             .par_chunks_mut(pw)
             .enumerate()
+            .with_min_len(min_rows(pw))
             .for_each(|(py, row)| {
                 let y = (py as isize - border as isize).clamp(0, self.h as isize - 1) as usize;
                 let src = &self.data[y * self.w..(y + 1) * self.w];
@@ -218,6 +233,7 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
         .par_chunks_mut(dw)
         .zip(ov.data.par_chunks_mut(dw))
         .zip(rows.par_iter())
+        .with_min_len(min_rows(dw))
         .for_each(|((ru, rv), &(y0, y1, fy))| {
             let (u0, u1) = (
                 &u.data[y0 * sw..(y0 + 1) * sw],
@@ -262,6 +278,7 @@ pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Ve
     let sw = u.w;
     out.par_chunks_mut(dw)
         .zip(rows.par_iter())
+        .with_min_len(min_rows(dw))
         .for_each(|(row, &(y0, y1, fy))| {
             let (u0, u1) = (
                 &u.data[y0 * sw..(y0 + 1) * sw],
@@ -289,12 +306,16 @@ pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Ve
 pub fn warp_plane(src: &Plane, u: &Plane, v: &Plane) -> Plane {
     let w = u.w;
     let mut out = Plane::zeros(w, u.h);
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = y * w;
-        for (x, px) in row.iter_mut().enumerate() {
-            *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
-        }
-    });
+    out.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = y * w;
+            for (x, px) in row.iter_mut().enumerate() {
+                *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
+            }
+        });
     out
 }
 

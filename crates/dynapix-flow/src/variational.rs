@@ -9,7 +9,7 @@
 //! solve the resulting linear system. Red-black ordering makes each half-sweep independent
 //! per pixel, so the row-parallel sweeps give the same result for any thread count.
 
-use crate::plane::{Plane, warp_plane};
+use crate::plane::{MIN_PAR_PIXELS, Plane, min_rows, warp_plane};
 use rayon::prelude::*;
 
 /// Parameters of the variational refinement (defaults = OpenCV's DIS/VariationalRefinement).
@@ -74,6 +74,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .par_iter_mut()
         .zip(iz.data.par_iter_mut())
         .zip(i0.data.par_iter().zip(warped.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|((a, z), (&p0, &p1))| {
             *a = 0.5 * (p0 + p1);
             *z = p1 - p0;
@@ -100,6 +101,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.by.par_iter_mut())
         .zip(c.bz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((bx, by), bz))| {
             let r = 1.0 / (ix.data[i] * ix.data[i] + iy.data[i] * iy.data[i] + z2).sqrt();
             *bx = ix.data[i] * r;
@@ -111,6 +113,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.gxy.par_iter_mut())
         .zip(c.gxz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((a, b), z))| {
             let r = 1.0 / (ixx.data[i] * ixx.data[i] + ixy.data[i] * ixy.data[i] + z2).sqrt();
             *a = ixx.data[i] * r;
@@ -122,6 +125,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.gyy.par_iter_mut())
         .zip(c.gyz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((a, b), z))| {
             let r = 1.0 / (iyy.data[i] * iyy.data[i] + ixy.data[i] * ixy.data[i] + z2).sqrt();
             *a = ixy.data[i] * r;
@@ -229,10 +233,12 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
     u.data
         .par_iter_mut()
         .zip(du_full.data.par_iter())
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(a, b)| *a += b);
     v.data
         .par_iter_mut()
         .zip(dv_full.data.par_iter())
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(a, b)| *a += b);
 }
 
@@ -240,17 +246,21 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
 fn merge_rb(lay: &RbLayout, src: &[Vec<f32>; 2], dst: &mut Plane) {
     let w = dst.w;
     let st = lay.stride;
-    dst.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = (y + 1) * st + 1;
-        let (even, odd) = if y % 2 == 0 {
-            (&src[0][o..o + st - 1], &src[1][o..o + st - 1])
-        } else {
-            (&src[1][o..o + st - 1], &src[0][o..o + st - 1])
-        };
-        for (x, val) in row.iter_mut().enumerate() {
-            *val = if x % 2 == 0 { even[x / 2] } else { odd[x / 2] };
-        }
-    });
+    dst.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = (y + 1) * st + 1;
+            let (even, odd) = if y % 2 == 0 {
+                (&src[0][o..o + st - 1], &src[1][o..o + st - 1])
+            } else {
+                (&src[1][o..o + st - 1], &src[0][o..o + st - 1])
+            };
+            for (x, val) in row.iter_mut().enumerate() {
+                *val = if x % 2 == 0 { even[x / 2] } else { odd[x / 2] };
+            }
+        });
 }
 
 /// Robust smoothness weight per pixel from the forward differences of `w + dw`.
@@ -269,28 +279,34 @@ fn smoothness_weights(
     cu.data
         .par_iter_mut()
         .zip(u.data.par_iter().zip(du.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(c, (a, b))| *c = a + b);
     cv.data
         .par_iter_mut()
         .zip(v.data.par_iter().zip(dv.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(c, (a, b))| *c = a + b);
     let alpha2 = 0.5 * p.alpha;
     let eps2 = p.epsilon * p.epsilon;
     let (cu, cv) = (&*cu, &*cv);
-    ws.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = y * w;
-        let yn = if y + 1 < h { o + w } else { o };
-        let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
-        let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
-        for x in 0..w {
-            let xn = if x + 1 < w { x + 1 } else { x };
-            let ux = u0[xn] - u0[x];
-            let vx = v0[xn] - v0[x];
-            let uy = u1[x] - u0[x];
-            let vy = v1[x] - v0[x];
-            row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
-        }
-    });
+    ws.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = y * w;
+            let yn = if y + 1 < h { o + w } else { o };
+            let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
+            let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
+            for x in 0..w {
+                let xn = if x + 1 < w { x + 1 } else { x };
+                let ux = u0[xn] - u0[x];
+                let vx = v0[xn] - v0[x];
+                let uy = u1[x] - u0[x];
+                let vy = v1[x] - v0[x];
+                row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
+            }
+        });
 }
 
 /// Everything needed to fill the per-colour systems of one fixed-point iteration.
@@ -345,14 +361,17 @@ impl BuildEnv<'_> {
             .into_iter()
             .zip(rows_mut(s1, st, h))
             .collect();
-        jobs.par_iter_mut().enumerate().for_each_init(
-            || vec![0.0f32; 5 * w],
-            |scratch, (y, (r0, r1))| {
-                self.data_row(y, scratch);
-                self.fill_row(0, y, r0, scratch);
-                self.fill_row(1, y, r1, scratch);
-            },
-        );
+        jobs.par_iter_mut()
+            .enumerate()
+            .with_min_len(min_rows(self.lay.w))
+            .for_each_init(
+                || vec![0.0f32; 5 * w],
+                |scratch, (y, (r0, r1))| {
+                    self.data_row(y, scratch);
+                    self.fill_row(0, y, r0, scratch);
+                    self.fill_row(1, y, r1, scratch);
+                },
+            );
     }
 
     /// Data-term blocks (a11, a12, a22, b1, b2) of row y, contiguous so the robust weights
@@ -468,6 +487,7 @@ fn sor_half_sweep(
         .par_chunks_mut(st)
         .zip(dv_c[st..(h + 1) * st].par_chunks_mut(st))
         .enumerate()
+        .with_min_len(min_rows(st))
         .for_each(|(y, (ru_row, rv_row))| {
             let (sft, len) = lay.row(colour, y);
             let o = (y + 1) * st;
