@@ -6,7 +6,10 @@ Pairs with known flow are made from real TUM frames (../shared/data) by the Rust
 `DISOpticalFlow` (PyPI `opencv-python-headless`) on the same pairs and prints, per pair and
 preset, the average end-point error (EPE), the share of pixels with error > 1 px and > 3 px
 (pixels whose ground-truth match lies inside the image) and the best / median time of
-`--repeat` runs, side by side.
+`--repeat` runs, side by side, plus the CPU time per run (all threads; process CPU time, which
+is far less disturbed by other processes than wall time on a shared machine). `--threads N`
+runs both with N threads (RAYON_NUM_THREADS / cv2.setNumThreads); `--threads 1` compares the
+work done.
 
 Setup (once):
     python3 -m venv /tmp/flowvenv && /tmp/flowvenv/bin/pip install opencv-python-headless numpy
@@ -60,6 +63,7 @@ def main():
     ap.add_argument("--out", help="folder for the pairs and flows (default: a temporary folder)")
     ap.add_argument("--presets", default="ultrafast,fast,medium")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    ap.add_argument("--threads", type=int, default=0, help="threads for both (0: their defaults)")
     args = ap.parse_args()
 
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -67,8 +71,12 @@ def main():
     presets = args.presets.split(",")
     cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "flow_eval",
            "--", out, *presets, "--repeat", str(args.repeat)]
+    env = dict(os.environ)
+    if args.threads > 0:
+        env["RAYON_NUM_THREADS"] = str(args.threads)
+        cv2.setNumThreads(args.threads)
     print("running:", " ".join(cmd), file=sys.stderr)
-    subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL, env=env)
     with open(os.path.join(out, "ours.json")) as f:
         ours = json.load(f)
 
@@ -84,33 +92,36 @@ def main():
             dis = cv2.DISOpticalFlow_create(PRESETS[p])
             times = []
             flow = None
+            cpu0 = time.process_time()
             for _ in range(max(1, args.repeat)):
                 t = time.perf_counter()
                 flow = dis.calc(a, b, None)
                 times.append(1e3 * (time.perf_counter() - t))
+            cpu = 1e3 * (time.process_time() - cpu0) / max(1, args.repeat)
             times.sort()
             cv_s = stats(flow, gt, mask)
             our_flow = read_flo(os.path.join(d, f"ours_{p}.flo"))
             our_s = stats(our_flow, gt, mask)
             o = ours[case][p]
-            rows.append((case, p, our_s, (o["best_ms"], o["median_ms"]), cv_s,
-                         (times[0], times[len(times) // 2])))
+            our_cpu = o.get("cpu_ms")
+            rows.append((case, p, our_s, (o["best_ms"], o["median_ms"], our_cpu if our_cpu is not None else float("nan")),
+                         cv_s, (times[0], times[len(times) // 2], cpu)))
 
     if args.markdown:
         print("| pair | preset | EPE ours | EPE OpenCV | >1px ours | >1px OpenCV | >3px ours | >3px OpenCV "
-              "| best/median ms ours | best/median ms OpenCV |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+              "| best/median ms ours | best/median ms OpenCV | CPU ms ours | CPU ms OpenCV |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for case, p, s, t, c, ct in rows:
             print(f"| {case} | {p} | {s[0]:.3f} | {c[0]:.3f} | {s[1]:.2f} % | {c[1]:.2f} % | {s[2]:.2f} % "
-                  f"| {c[2]:.2f} % | {t[0]:.1f} / {t[1]:.1f} | {ct[0]:.1f} / {ct[1]:.1f} |")
+                  f"| {c[2]:.2f} % | {t[0]:.1f} / {t[1]:.1f} | {ct[0]:.1f} / {ct[1]:.1f} | {t[2]:.1f} | {ct[2]:.1f} |")
     else:
-        hdr = (f"{'pair':18} {'preset':9} | {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6} "
-               f"| {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6}")
-        print(f"{'':28} | {'dynapix DIS':^38} | {'OpenCV DIS':^38}")
+        hdr = (f"{'pair':18} {'preset':9} | {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6} {'cpu':>6} "
+               f"| {'EPE':>6} {'>1px%':>6} {'>3px%':>6} {'best':>6} {'med':>6} {'cpu':>6}")
+        print(f"{'':28} | {'dynapix DIS':^45} | {'OpenCV DIS':^45}")
         print(hdr)
         for case, p, s, t, c, ct in rows:
-            print(f"{case:18} {p:9} | {s[0]:6.3f} {s[1]:6.2f} {s[2]:6.2f} {t[0]:6.1f} {t[1]:6.1f} "
-                  f"| {c[0]:6.3f} {c[1]:6.2f} {c[2]:6.2f} {ct[0]:6.1f} {ct[1]:6.1f}")
+            print(f"{case:18} {p:9} | {s[0]:6.3f} {s[1]:6.2f} {s[2]:6.2f} {t[0]:6.1f} {t[1]:6.1f} {t[2]:6.1f} "
+                  f"| {c[0]:6.3f} {c[1]:6.2f} {c[2]:6.2f} {ct[0]:6.1f} {ct[1]:6.1f} {ct[2]:6.1f}")
 
 
 if __name__ == "__main__":

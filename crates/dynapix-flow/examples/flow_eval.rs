@@ -3,13 +3,26 @@
 //! `cargo run --release -p dynapix-flow --example flow_eval -- OUT_DIR [PRESET...] [--repeat N]`
 //!
 //! For each case, `OUT_DIR/<case>/` receives `a.png`, `b.png`, `gt.flo`, `ours_<preset>.flo`,
-//! and `OUT_DIR/ours.json` lists per case and preset the error statistics and the best and
-//! median time of `--repeat` runs (default 5). `scripts/compare-flow-opencv.py` reads these.
+//! and `OUT_DIR/ours.json` lists per case and preset the error statistics, the best and
+//! median wall time of `--repeat` runs (default 5) and the process CPU time per run (Linux
+//! `/proc/self/stat`, all threads). `scripts/compare-flow-opencv.py` reads these.
 
 use dynapix_flow::metrics::visible_mask;
 use dynapix_flow::{DisFlow, FlowProvider, Preset, flow_error, pairs, write_flo};
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// Process CPU time (user + system, all threads) in milliseconds, if the OS tells it.
+fn cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses and may contain spaces).
+    let rest = stat.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    // Clock ticks are 100 Hz on Linux (USER_HZ).
+    Some((utime + stime) * 10.0)
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -68,12 +81,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let dis = DisFlow::with_preset(preset.parse::<Preset>()?);
             let mut times = Vec::new();
             let mut flow = None;
+            let cpu0 = cpu_ms();
             for _ in 0..repeat.max(1) {
                 let t = Instant::now();
                 let f = dis.flow(&a, &b)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 flow = Some(f);
             }
+            let cpu = match (cpu0, cpu_ms()) {
+                (Some(a), Some(b)) => (b - a) / repeat.max(1) as f64,
+                _ => f64::NAN,
+            };
             let flow = flow.ok_or("no run")?;
             write_flo(dir.join(format!("ours_{preset}.flo")), &flow)?;
             let s = flow_error(&flow, gt, Some(&mask))?;
@@ -81,16 +99,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let best = times[0];
             let median = times[times.len() / 2];
             println!(
-                "{name:18} {preset:9} EPE {:.3}  >1px {:5.2}%  >3px {:5.2}%  best {best:.1} ms  median {median:.1} ms",
+                "{name:18} {preset:9} EPE {:.3}  >1px {:5.2}%  >3px {:5.2}%  best {best:.1} ms  median {median:.1} ms  CPU {cpu:.1} ms/run",
                 s.epe,
                 100.0 * s.over_1px,
                 100.0 * s.over_3px
             );
             json += &format!(
-                "    \"{preset}\": {{\"epe\": {}, \"over_1px\": {}, \"over_3px\": {}, \"best_ms\": {best}, \"median_ms\": {median}}}{}\n",
+                "    \"{preset}\": {{\"epe\": {}, \"over_1px\": {}, \"over_3px\": {}, \"best_ms\": {best}, \"median_ms\": {median}, \"cpu_ms\": {}}}{}\n",
                 s.epe,
                 s.over_1px,
                 s.over_3px,
+                if cpu.is_finite() {
+                    format!("{cpu}")
+                } else {
+                    "null".to_string()
+                },
                 if pi + 1 < presets.len() { "," } else { "" }
             );
         }

@@ -16,7 +16,7 @@
 //!
 //! The flow of the finest computed level is bilinearly upsampled to the input size.
 
-use crate::plane::{Plane, resize_flow};
+use crate::plane::{Plane, min_rows, resize_flow, resize_flow_interleaved};
 use crate::variational::{VariationalParams, refine};
 use crate::{FlowError, FlowField, FlowProvider};
 use image::GrayImage;
@@ -144,6 +144,23 @@ impl DisFlow {
                 b: (b.w as u32, b.h as u32),
             });
         }
+        self.check_params()?;
+        let (w, h) = (a.w, a.h);
+        if w == 0 || h == 0 {
+            return Ok((Plane::zeros(w, h), Plane::zeros(w, h)));
+        }
+        let (finest, coarsest) = scale_range(w, h, &self.params);
+        let pyr_a = pyramid(a.clone(), 0, finest, coarsest);
+        let pyr_b = pyramid(b.clone(), 0, finest, coarsest);
+        let (u, v) = self.coarse_to_fine(&pyr_a, &pyr_b);
+        if (u.w, u.h) == (w, h) {
+            Ok((u, v))
+        } else {
+            Ok(resize_flow(&u, &v, w, h))
+        }
+    }
+
+    fn check_params(&self) -> Result<(), FlowError> {
         let p = &self.params;
         if p.patch_size == 0 || p.patch_stride == 0 || p.propagation_bands == 0 {
             return Err(FlowError::Other(format!(
@@ -151,22 +168,15 @@ impl DisFlow {
                 p.patch_size, p.patch_stride, p.propagation_bands
             )));
         }
-        let (w, h) = (a.w, a.h);
-        if w == 0 || h == 0 {
-            return Ok((Plane::zeros(w, h), Plane::zeros(w, h)));
-        }
-        let (finest, coarsest) = scale_range(w, h, p);
-        let mut pyr_a = vec![a.clone()];
-        let mut pyr_b = vec![b.clone()];
-        for s in 1..=coarsest {
-            let na = pyr_a[s - 1].downsample2();
-            let nb = pyr_b[s - 1].downsample2();
-            pyr_a.push(na);
-            pyr_b.push(nb);
-        }
+        Ok(())
+    }
+
+    /// Runs the levels from the coarsest to the finest; `pyr_*[i]` is level `finest + i`.
+    /// Returns the flow at the finest level.
+    fn coarse_to_fine(&self, pyr_a: &[Plane], pyr_b: &[Plane]) -> (Plane, Plane) {
+        let p = &self.params;
         let mut flow: Option<(Plane, Plane)> = None;
-        for s in (finest..=coarsest).rev() {
-            let (ia, ib) = (&pyr_a[s], &pyr_b[s]);
+        for (ia, ib) in pyr_a.iter().zip(pyr_b).rev() {
             let (mut u, mut v) = match flow.take() {
                 None => (Plane::zeros(ia.w, ia.h), Plane::zeros(ia.w, ia.h)),
                 Some((pu, pv)) => resize_flow(&pu, &pv, ia.w, ia.h),
@@ -175,13 +185,22 @@ impl DisFlow {
             refine(ia, ib, &mut u, &mut v, &p.variational);
             flow = Some((u, v));
         }
-        let (u, v) = flow.unwrap_or_else(|| (Plane::zeros(w, h), Plane::zeros(w, h)));
-        if (u.w, u.h) == (w, h) {
-            Ok((u, v))
-        } else {
-            Ok(resize_flow(&u, &v, w, h))
-        }
+        flow.unwrap_or_else(|| (Plane::zeros(1, 1), Plane::zeros(1, 1)))
     }
+}
+
+/// Levels `finest..=coarsest` of the pyramid whose level `start` is `base`.
+fn pyramid(base: Plane, start: usize, finest: usize, coarsest: usize) -> Vec<Plane> {
+    let mut cur = base;
+    for _ in start..finest {
+        cur = cur.downsample2();
+    }
+    let mut levels = vec![cur];
+    for _ in finest..coarsest {
+        let next = levels[levels.len() - 1].downsample2();
+        levels.push(next);
+    }
+    levels
 }
 
 impl FlowProvider for DisFlow {
@@ -192,13 +211,33 @@ impl FlowProvider for DisFlow {
                 b: b.dimensions(),
             });
         }
-        let (u, v) = self.compute_planes(&Plane::from_gray(a), &Plane::from_gray(b))?;
-        Ok(FlowField::from_planes(
-            a.width(),
-            a.height(),
-            &u.data,
-            &v.data,
-        ))
+        self.check_params()?;
+        let (w, h) = (a.width() as usize, a.height() as usize);
+        if w == 0 || h == 0 {
+            return Ok(FlowField::zeros(a.width(), a.height()));
+        }
+        let (finest, coarsest) = scale_range(w, h, &self.params);
+        // Start the pyramid from the 8-bit image: full-resolution float copies are only made
+        // when level 0 is computed.
+        let base = |img: &GrayImage| {
+            if finest == 0 {
+                pyramid(Plane::from_gray(img), 0, 0, coarsest)
+            } else {
+                pyramid(Plane::downsample2_gray(img), 1, finest, coarsest)
+            }
+        };
+        let (pyr_a, pyr_b) = rayon::join(|| base(a), || base(b));
+        let (u, v) = self.coarse_to_fine(&pyr_a, &pyr_b);
+        let data = if (u.w, u.h) == (w, h) {
+            u.data.iter().zip(&v.data).map(|(&x, &y)| [x, y]).collect()
+        } else {
+            resize_flow_interleaved(&u, &v, w, h)
+        };
+        Ok(FlowField {
+            width: a.width(),
+            height: a.height(),
+            data,
+        })
     }
 }
 
@@ -727,6 +766,7 @@ fn densify(
         .par_chunks_mut(w)
         .zip(v.data.par_chunks_mut(w))
         .enumerate()
+        .with_min_len(min_rows(w))
         .for_each_init(
             || vec![0.0f32; w],
             |wsum, (y, (ru, rv))| {

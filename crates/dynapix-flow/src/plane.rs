@@ -7,6 +7,16 @@
 
 use rayon::prelude::*;
 
+/// Smallest amount of per-pixel work (pixels) worth a rayon task: below it, task overhead
+/// dominates (coarse pyramid levels are tiny).
+pub(crate) const MIN_PAR_PIXELS: usize = 4096;
+
+/// Minimum number of rows of width `w` per rayon task.
+#[inline]
+pub(crate) fn min_rows(w: usize) -> usize {
+    (MIN_PAR_PIXELS / w.max(1)).max(1)
+}
+
 /// A row-major single-channel `f32` image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plane {
@@ -66,6 +76,38 @@ impl Plane {
         top + fy * (bot - top)
     }
 
+    /// [`Plane::downsample2`] of an 8-bit image, without a full-resolution float copy.
+    pub fn downsample2_gray(img: &image::GrayImage) -> Self {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let src = img.as_raw();
+        let nw = (w / 2).max(1);
+        let nh = (h / 2).max(1);
+        let mut out = Plane::zeros(nw, nh);
+        if w == 0 || h == 0 {
+            return out;
+        }
+        out.data
+            .par_chunks_mut(nw)
+            .enumerate()
+            .with_min_len(min_rows(nw))
+            .for_each(|(y, row)| {
+                let y0 = (2 * y).min(h - 1);
+                let y1 = (2 * y + 1).min(h - 1);
+                let r0 = &src[y0 * w..(y0 + 1) * w];
+                let r1 = &src[y1 * w..(y1 + 1) * w];
+                for (x, o) in row.iter_mut().enumerate() {
+                    let x0 = (2 * x).min(w - 1);
+                    let x1 = (2 * x + 1).min(w - 1);
+                    let s = u16::from(r0[x0])
+                        + u16::from(r0[x1])
+                        + u16::from(r1[x0])
+                        + u16::from(r1[x1]);
+                    *o = 0.25 * f32::from(s);
+                }
+            });
+        out
+    }
+
     /// Halves the resolution by averaging 2×2 blocks (an odd last row/column is dropped, like
     /// an area resize to `w/2 × h/2`). Sizes never go below 1.
     pub fn downsample2(&self) -> Plane {
@@ -75,6 +117,7 @@ impl Plane {
         out.data
             .par_chunks_mut(nw)
             .enumerate()
+            .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
                 let y0 = (2 * y).min(self.h - 1);
                 let y1 = (2 * y + 1).min(self.h - 1);
@@ -98,6 +141,7 @@ impl Plane {
             .par_chunks_mut(w)
             .zip(gy.data.par_chunks_mut(w))
             .enumerate()
+            .with_min_len(min_rows(w))
             .for_each(|(y, (rx, ry))| {
                 let ym = y.saturating_sub(1);
                 let yp = (y + 1).min(h - 1);
@@ -125,6 +169,7 @@ impl Plane {
             .par_chunks_mut(w)
             .zip(gy.data.par_chunks_mut(w))
             .enumerate()
+            .with_min_len(min_rows(w))
             .for_each(|(y, (rx, ry))| {
                 let ym = y.saturating_sub(1);
                 let yp = (y + 1).min(h - 1);
@@ -149,6 +194,7 @@ impl Plane {
         out.data
             .par_chunks_mut(pw)
             .enumerate()
+            .with_min_len(min_rows(pw))
             .for_each(|(py, row)| {
                 let y = (py as isize - border as isize).clamp(0, self.h as isize - 1) as usize;
                 let src = &self.data[y * self.w..(y + 1) * self.w];
@@ -187,6 +233,7 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
         .par_chunks_mut(dw)
         .zip(ov.data.par_chunks_mut(dw))
         .zip(rows.par_iter())
+        .with_min_len(min_rows(dw))
         .for_each(|((ru, rv), &(y0, y1, fy))| {
             let (u0, u1) = (
                 &u.data[y0 * sw..(y0 + 1) * sw],
@@ -208,16 +255,67 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
     (ou, ov)
 }
 
+/// [`resize_flow`] into interleaved `[u, v]` vectors (the layout of `FlowField`).
+pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Vec<[f32; 2]> {
+    let mut out = vec![[0.0f32; 2]; dw * dh];
+    if dw == 0 || dh == 0 || u.w == 0 || u.h == 0 {
+        return out;
+    }
+    let sx = u.w as f32 / dw as f32;
+    let sy = u.h as f32 / dh as f32;
+    let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+        (0..n_dst)
+            .map(|d| {
+                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                let i0 = p as usize;
+                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+            })
+            .collect()
+    };
+    let cols = taps(dw, u.w, sx);
+    let rows = taps(dh, u.h, sy);
+    let sw = u.w;
+    out.par_chunks_mut(dw)
+        .zip(rows.par_iter())
+        .with_min_len(min_rows(dw))
+        .for_each(|(row, &(y0, y1, fy))| {
+            let (u0, u1) = (
+                &u.data[y0 * sw..(y0 + 1) * sw],
+                &u.data[y1 * sw..(y1 + 1) * sw],
+            );
+            let (v0, v1) = (
+                &v.data[y0 * sw..(y0 + 1) * sw],
+                &v.data[y1 * sw..(y1 + 1) * sw],
+            );
+            for (o, &(x0, x1, fx)) in row.iter_mut().zip(&cols) {
+                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                *o = [
+                    (tu + fy * (bu - tu)) * scale_u,
+                    (tv + fy * (bv - tv)) * scale_v,
+                ];
+            }
+        });
+    out
+}
+
 /// Backward warp: `out(x) = src(x + (u, v)(x))`, bilinear with replicated border.
 pub fn warp_plane(src: &Plane, u: &Plane, v: &Plane) -> Plane {
     let w = u.w;
     let mut out = Plane::zeros(w, u.h);
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = y * w;
-        for (x, px) in row.iter_mut().enumerate() {
-            *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
-        }
-    });
+    out.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = y * w;
+            for (x, px) in row.iter_mut().enumerate() {
+                *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
+            }
+        });
     out
 }
 

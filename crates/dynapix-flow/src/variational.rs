@@ -9,7 +9,7 @@
 //! solve the resulting linear system. Red-black ordering makes each half-sweep independent
 //! per pixel, so the row-parallel sweeps give the same result for any thread count.
 
-use crate::plane::{Plane, warp_plane};
+use crate::plane::{MIN_PAR_PIXELS, Plane, min_rows, warp_plane};
 use rayon::prelude::*;
 
 /// Parameters of the variational refinement (defaults = OpenCV's DIS/VariationalRefinement).
@@ -74,6 +74,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .par_iter_mut()
         .zip(iz.data.par_iter_mut())
         .zip(i0.data.par_iter().zip(warped.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|((a, z), (&p0, &p1))| {
             *a = 0.5 * (p0 + p1);
             *z = p1 - p0;
@@ -100,6 +101,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.by.par_iter_mut())
         .zip(c.bz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((bx, by), bz))| {
             let r = 1.0 / (ix.data[i] * ix.data[i] + iy.data[i] * iy.data[i] + z2).sqrt();
             *bx = ix.data[i] * r;
@@ -111,6 +113,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.gxy.par_iter_mut())
         .zip(c.gxz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((a, b), z))| {
             let r = 1.0 / (ixx.data[i] * ixx.data[i] + ixy.data[i] * ixy.data[i] + z2).sqrt();
             *a = ixx.data[i] * r;
@@ -122,6 +125,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
         .zip(c.gyy.par_iter_mut())
         .zip(c.gyz.par_iter_mut())
         .enumerate()
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(i, ((a, b), z))| {
             let r = 1.0 / (iyy.data[i] * iyy.data[i] + ixy.data[i] * ixy.data[i] + z2).sqrt();
             *a = ixy.data[i] * r;
@@ -229,10 +233,12 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
     u.data
         .par_iter_mut()
         .zip(du_full.data.par_iter())
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(a, b)| *a += b);
     v.data
         .par_iter_mut()
         .zip(dv_full.data.par_iter())
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(a, b)| *a += b);
 }
 
@@ -240,17 +246,21 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
 fn merge_rb(lay: &RbLayout, src: &[Vec<f32>; 2], dst: &mut Plane) {
     let w = dst.w;
     let st = lay.stride;
-    dst.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = (y + 1) * st + 1;
-        let (even, odd) = if y % 2 == 0 {
-            (&src[0][o..o + st - 1], &src[1][o..o + st - 1])
-        } else {
-            (&src[1][o..o + st - 1], &src[0][o..o + st - 1])
-        };
-        for (x, val) in row.iter_mut().enumerate() {
-            *val = if x % 2 == 0 { even[x / 2] } else { odd[x / 2] };
-        }
-    });
+    dst.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = (y + 1) * st + 1;
+            let (even, odd) = if y % 2 == 0 {
+                (&src[0][o..o + st - 1], &src[1][o..o + st - 1])
+            } else {
+                (&src[1][o..o + st - 1], &src[0][o..o + st - 1])
+            };
+            for (x, val) in row.iter_mut().enumerate() {
+                *val = if x % 2 == 0 { even[x / 2] } else { odd[x / 2] };
+            }
+        });
 }
 
 /// Robust smoothness weight per pixel from the forward differences of `w + dw`.
@@ -269,28 +279,34 @@ fn smoothness_weights(
     cu.data
         .par_iter_mut()
         .zip(u.data.par_iter().zip(du.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(c, (a, b))| *c = a + b);
     cv.data
         .par_iter_mut()
         .zip(v.data.par_iter().zip(dv.data.par_iter()))
+        .with_min_len(MIN_PAR_PIXELS)
         .for_each(|(c, (a, b))| *c = a + b);
     let alpha2 = 0.5 * p.alpha;
     let eps2 = p.epsilon * p.epsilon;
     let (cu, cv) = (&*cu, &*cv);
-    ws.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let o = y * w;
-        let yn = if y + 1 < h { o + w } else { o };
-        let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
-        let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
-        for x in 0..w {
-            let xn = if x + 1 < w { x + 1 } else { x };
-            let ux = u0[xn] - u0[x];
-            let vx = v0[xn] - v0[x];
-            let uy = u1[x] - u0[x];
-            let vy = v1[x] - v0[x];
-            row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
-        }
-    });
+    ws.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(min_rows(w))
+        .for_each(|(y, row)| {
+            let o = y * w;
+            let yn = if y + 1 < h { o + w } else { o };
+            let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
+            let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
+            for x in 0..w {
+                let xn = if x + 1 < w { x + 1 } else { x };
+                let ux = u0[xn] - u0[x];
+                let vx = v0[xn] - v0[x];
+                let uy = u1[x] - u0[x];
+                let vy = v1[x] - v0[x];
+                row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
+            }
+        });
 }
 
 /// Everything needed to fill the per-colour systems of one fixed-point iteration.
@@ -339,27 +355,29 @@ fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
 impl BuildEnv<'_> {
     /// Fills both colours' systems, rows in parallel.
     fn fill_all(&self, sys: &mut [RbSystem; 2]) {
-        let (st, h) = (self.lay.stride, self.lay.h);
+        let (st, h, w) = (self.lay.stride, self.lay.h, self.lay.w);
         let [s0, s1] = sys;
-        let mut jobs: Vec<(usize, usize, RowMut<'_>)> = Vec::with_capacity(2 * h);
-        jobs.extend(
-            rows_mut(s0, st, h)
-                .into_iter()
-                .enumerate()
-                .map(|(y, r)| (0, y, r)),
-        );
-        jobs.extend(
-            rows_mut(s1, st, h)
-                .into_iter()
-                .enumerate()
-                .map(|(y, r)| (1, y, r)),
-        );
+        let mut jobs: Vec<(RowMut<'_>, RowMut<'_>)> = rows_mut(s0, st, h)
+            .into_iter()
+            .zip(rows_mut(s1, st, h))
+            .collect();
         jobs.par_iter_mut()
-            .for_each(|(colour, y, row)| self.fill_row(*colour, *y, row));
+            .enumerate()
+            .with_min_len(min_rows(self.lay.w))
+            .for_each_init(
+                || vec![0.0f32; 5 * w],
+                |scratch, (y, (r0, r1))| {
+                    self.data_row(y, scratch);
+                    self.fill_row(0, y, r0, scratch);
+                    self.fill_row(1, y, r1, scratch);
+                },
+            );
     }
 
-    fn fill_row(&self, colour: usize, y: usize, s: &mut RowMut<'_>) {
-        let (w, h) = (self.lay.w, self.lay.h);
+    /// Data-term blocks (a11, a12, a22, b1, b2) of row y, contiguous so the robust weights
+    /// (square roots, divisions) vectorise.
+    fn data_row(&self, y: usize, out: &mut [f32]) {
+        let w = self.lay.w;
         let z2 = self.p.zeta * self.p.zeta;
         let eps2 = self.p.epsilon * self.p.epsilon;
         let (delta2, gamma2) = (0.5 * self.p.delta, 0.5 * self.p.gamma);
@@ -373,7 +391,39 @@ impl BuildEnv<'_> {
         let (gxx, gxy, gxz) = (row(&d.gxx), row(&d.gxy), row(&d.gxz));
         let (gyx, gyy, gyz) = (row(&d.gyx), row(&d.gyy), row(&d.gyz));
         let (du, dv) = (row(&self.du.data), row(&self.dv.data));
-        let (u, v, ws) = (row(&self.u.data), row(&self.v.data), row(&self.ws.data));
+        let (a11, rest) = out.split_at_mut(w);
+        let (a12, rest) = rest.split_at_mut(w);
+        let (a22, rest) = rest.split_at_mut(w);
+        let (b1, b2) = rest.split_at_mut(w);
+        let b2 = &mut b2[..w];
+        for x in 0..w {
+            let (ddu, ddv) = (du[x], dv[x]);
+            // Brightness constancy (normalised), robust weight from the current increment.
+            let r = bz[x] + bx[x] * ddu + by[x] * ddv;
+            let wi = delta2 / (r * r + eps2).sqrt();
+            // Gradient constancy.
+            let rx = gxz[x] + gxx[x] * ddu + gxy[x] * ddv;
+            let ry = gyz[x] + gyx[x] * ddu + gyy[x] * ddv;
+            let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
+            a11[x] = wi * bx[x] * bx[x] + wg * (gxx[x] * gxx[x] + gyx[x] * gyx[x]) + z2;
+            a12[x] = wi * bx[x] * by[x] + wg * (gxx[x] * gxy[x] + gyx[x] * gyy[x]);
+            a22[x] = wi * by[x] * by[x] + wg * (gxy[x] * gxy[x] + gyy[x] * gyy[x]) + z2;
+            b1[x] = -wi * bz[x] * bx[x] - wg * (gxx[x] * gxz[x] + gyx[x] * gyz[x]);
+            b2[x] = -wi * bz[x] * by[x] - wg * (gxy[x] * gxz[x] + gyy[x] * gyz[x]);
+        }
+    }
+
+    /// Scatters row y of one colour into its system, adding the smoothness terms.
+    fn fill_row(&self, colour: usize, y: usize, s: &mut RowMut<'_>, data: &[f32]) {
+        let (w, h) = (self.lay.w, self.lay.h);
+        let o = y * w;
+        let (u, v, ws) = (
+            &self.u.data[o..o + w],
+            &self.v.data[o..o + w],
+            &self.ws.data[o..o + w],
+        );
+        let (a11, a12, a22) = (&data[..w], &data[w..2 * w], &data[2 * w..3 * w]);
+        let (b1, b2) = (&data[3 * w..4 * w], &data[4 * w..5 * w]);
         // Neighbour rows (the row itself at the border, where the weight is zero anyway).
         let up = if y > 0 { o - w } else { o };
         let dn = if y + 1 < h { o + w } else { o };
@@ -384,19 +434,6 @@ impl BuildEnv<'_> {
         for k in 0..len {
             let x = x0 + 2 * k;
             let j = k + 1;
-            let (ddu, ddv) = (du[x], dv[x]);
-            // Brightness constancy (normalised), robust weight from the current increment.
-            let r = bz[x] + bx[x] * ddu + by[x] * ddv;
-            let wi = delta2 / (r * r + eps2).sqrt();
-            // Gradient constancy.
-            let rx = gxz[x] + gxx[x] * ddu + gxy[x] * ddv;
-            let ry = gyz[x] + gyx[x] * ddu + gyy[x] * ddv;
-            let wg = gamma2 / (rx * rx + ry * ry + eps2).sqrt();
-            let a11 = wi * bx[x] * bx[x] + wg * (gxx[x] * gxx[x] + gyx[x] * gyx[x]) + z2;
-            let a12 = wi * bx[x] * by[x] + wg * (gxx[x] * gxy[x] + gyx[x] * gyy[x]);
-            let a22 = wi * by[x] * by[x] + wg * (gxy[x] * gxy[x] + gyy[x] * gyy[x]) + z2;
-            let b1 = -wi * bz[x] * bx[x] - wg * (gxx[x] * gxz[x] + gyx[x] * gyz[x]);
-            let b2 = -wi * bz[x] * by[x] - wg * (gxy[x] * gxz[x] + gyy[x] * gyz[x]);
             // Smoothness: edge weights (zero across the image border) and the base flow's
             // differences to the neighbours on the right-hand side.
             let xl = x.saturating_sub(1);
@@ -416,11 +453,11 @@ impl BuildEnv<'_> {
             let sum = wl + wr + wu + wd;
             // Raw weight even at the border: the sweeps multiply it by the zero padding.
             s.ws[j] = ws[x];
-            s.ru[j] = b1 + su;
-            s.rv[j] = b2 + sv;
-            s.a12[j] = a12;
-            s.inv11[j] = 1.0 / (a11 + sum);
-            s.inv22[j] = 1.0 / (a22 + sum);
+            s.ru[j] = b1[x] + su;
+            s.rv[j] = b2[x] + sv;
+            s.a12[j] = a12[x];
+            s.inv11[j] = 1.0 / (a11[x] + sum);
+            s.inv22[j] = 1.0 / (a22[x] + sum);
         }
     }
 }
@@ -450,6 +487,7 @@ fn sor_half_sweep(
         .par_chunks_mut(st)
         .zip(dv_c[st..(h + 1) * st].par_chunks_mut(st))
         .enumerate()
+        .with_min_len(min_rows(st))
         .for_each(|(y, (ru_row, rv_row))| {
             let (sft, len) = lay.row(colour, y);
             let o = (y + 1) * st;
