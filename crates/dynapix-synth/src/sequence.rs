@@ -832,7 +832,7 @@ mod orb_suitability {
 
     fn grey(img: &RgbImage) -> Vec<i32> {
         img.pixels()
-            .map(|p| ((p[0] as i32 * 299 + p[1] as i32 * 587 + p[2] as i32 * 114 + 500) / 1000))
+            .map(|p| (p[0] as i32 * 299 + p[1] as i32 * 587 + p[2] as i32 * 114 + 500) / 1000)
             .collect()
     }
 
