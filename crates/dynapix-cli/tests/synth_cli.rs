@@ -138,6 +138,26 @@ fn writes_layout_deterministically() {
     assert_eq!(flo.len(), 12 + 160 * 120 * 8);
     assert!(a.join("flow").join("0.033333.flo").exists());
     assert!(!a.join("flow").join("0.066667.flo").exists());
+
+    // The dataset reader of dynapix-io sees a DynaPix sequence with all its parts.
+    let seq = dynapix_io::Sequence::open(&a).expect("dynapix-io opens the output");
+    assert_eq!(seq.layout, dynapix_io::Layout::DynaPix);
+    assert_eq!(seq.frames.len(), 4);
+    assert_eq!(seq.depth_factor, 5000.0);
+    let cam = seq.settings().expect("settings").camera();
+    assert_eq!((cam.width, cam.height), (160, 120));
+    assert!((cam.fx - 535.4 / 4.0).abs() < 1e-9);
+    let f = seq.load_frame(2).expect("frame 2");
+    assert!(f.background.is_some() && f.depth_bg.is_some() && f.mask.is_some());
+    let pose = f.gt_pose.expect("ground-truth pose");
+    let line = &gt[2];
+    let tx: f64 = line
+        .split_whitespace()
+        .nth(1)
+        .expect("tx")
+        .parse()
+        .expect("number");
+    assert!((pose.translation.vector.x - tx).abs() < 1e-9);
 }
 
 #[test]
