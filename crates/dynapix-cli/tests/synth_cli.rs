@@ -5,11 +5,16 @@ use std::path::Path;
 use std::process::Command;
 
 fn synth(args: &[&str]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_dynapix"))
-        .arg("synth")
-        .args(args)
-        .output()
-        .expect("run dynapix");
+    synth_threads(args, None);
+}
+
+/// Runs `dynapix synth`, optionally with a fixed number of rayon threads.
+fn synth_threads(args: &[&str], threads: Option<usize>) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_dynapix"));
+    if let Some(n) = threads {
+        cmd.env("RAYON_NUM_THREADS", n.to_string());
+    }
+    let out = cmd.arg("synth").args(args).output().expect("run dynapix");
     assert!(
         out.status.success(),
         "dynapix synth {args:?} failed: {}",
@@ -43,8 +48,15 @@ fn writes_layout_deterministically() {
         "--flow",
         "2",
     ];
-    synth(&[&common[..], &["--out", a.to_str().expect("utf8")]].concat());
-    synth(&[&common[..], &["--out", b.to_str().expect("utf8")]].concat());
+    // Different thread counts must not change a byte.
+    synth_threads(
+        &[&common[..], &["--out", a.to_str().expect("utf8")]].concat(),
+        Some(1),
+    );
+    synth_threads(
+        &[&common[..], &["--out", b.to_str().expect("utf8")]].concat(),
+        Some(3),
+    );
 
     let assoc = lines(&a.join("association.txt"));
     assert_eq!(assoc.len(), 4);
@@ -54,6 +66,13 @@ fn writes_layout_deterministically() {
         assert_eq!(f[0], format!("{:.6}", i as f64 / 30.0));
         assert_eq!(f[1], format!("rgb/{}.png", f[0]));
         assert_eq!(f[3], format!("depth/{}.png", f[2]));
+        let flo = a.join("flow").join(format!("{}.flo", f[0]));
+        if flo.exists() {
+            assert_eq!(
+                std::fs::read(&flo).expect("flo"),
+                std::fs::read(b.join("flow").join(format!("{}.flo", f[0]))).expect("flo b")
+            );
+        }
         for dir in ["rgb", "depth", "background", "depth_bg", "mask", "instance"] {
             let p = a.join(dir).join(format!("{}.png", f[0]));
             let pb = b.join(dir).join(format!("{}.png", f[0]));
@@ -119,6 +138,26 @@ fn writes_layout_deterministically() {
     assert_eq!(flo.len(), 12 + 160 * 120 * 8);
     assert!(a.join("flow").join("0.033333.flo").exists());
     assert!(!a.join("flow").join("0.066667.flo").exists());
+
+    // The dataset reader of dynapix-io sees a DynaPix sequence with all its parts.
+    let seq = dynapix_io::Sequence::open(&a).expect("dynapix-io opens the output");
+    assert_eq!(seq.layout, dynapix_io::Layout::DynaPix);
+    assert_eq!(seq.frames.len(), 4);
+    assert_eq!(seq.depth_factor, 5000.0);
+    let cam = seq.settings().expect("settings").camera();
+    assert_eq!((cam.width, cam.height), (160, 120));
+    assert!((cam.fx - 535.4 / 4.0).abs() < 1e-9);
+    let f = seq.load_frame(2).expect("frame 2");
+    assert!(f.background.is_some() && f.depth_bg.is_some() && f.mask.is_some());
+    let pose = f.gt_pose.expect("ground-truth pose");
+    let line = &gt[2];
+    let tx: f64 = line
+        .split_whitespace()
+        .nth(1)
+        .expect("tx")
+        .parse()
+        .expect("number");
+    assert!((pose.translation.vector.x - tx).abs() < 1e-9);
 }
 
 #[test]

@@ -162,9 +162,9 @@ impl Augmenter {
                         rng.random_range(0.4..0.8),
                     ),
                     phase: Vector3::new(
-                        rng.random_range(0.0..6.28),
-                        rng.random_range(0.0..6.28),
-                        rng.random_range(0.0..6.28),
+                        rng.random_range(0.0..std::f32::consts::TAU),
+                        rng.random_range(0.0..std::f32::consts::TAU),
+                        rng.random_range(0.0..std::f32::consts::TAU),
                     ),
                     spin: (spin, rng.random_range(0.5..1.2)),
                 },
@@ -194,6 +194,7 @@ impl Augmenter {
     /// Composites the movers at time `t` (relative to the sequence start) into a real frame
     /// with camera-to-world pose `pose`, raw depth `depth` (units per metre `depth_factor`).
     /// `dt` is the frame period used for the moving/still decision.
+    #[allow(clippy::too_many_arguments)]
     pub fn composite(
         &self,
         k: &Intrinsics,

@@ -32,6 +32,9 @@ pub struct RenderParams {
     pub lod_bias: f32,
     /// Smallest |cos(incidence)| used in the footprint estimate (limits blur at grazing angles).
     pub min_cos: f32,
+    /// Supersample pixels on silhouettes of the static scene (id differs from a 4-neighbour)
+    /// with a 2×2 grid, so that furniture edges do not stair-step and corners stay put.
+    pub edge_aa: bool,
 }
 
 impl Default for RenderParams {
@@ -40,6 +43,7 @@ impl Default for RenderParams {
             near: 0.05,
             lod_bias: 0.5,
             min_cos: 0.05,
+            edge_aa: true,
         }
     }
 }
@@ -272,24 +276,71 @@ pub fn render(
         rgb,
         ..
     } = out;
-    bg_rgb
-        .par_chunks_mut(w)
-        .zip(rgb.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (brow, frow))| {
-            let yn = (y as f32 - k.cy) / k.fy;
-            for x in 0..w {
-                let i = y * w + x;
+    let h = k.height;
+    let (bg_depth, bg_id) = (&*bg_depth, &*bg_id);
+    bg_rgb.par_chunks_mut(w).enumerate().for_each(|(y, brow)| {
+        let yn = (y as f32 - k.cy) / k.fy;
+        for x in 0..w {
+            let i = y * w + x;
+            let c = bg_id[i];
+            let edge = params.edge_aa
+                && ((x > 0 && bg_id[i - 1] != c)
+                    || (x + 1 < w && bg_id[i + 1] != c)
+                    || (y > 0 && bg_id[i - w] != c)
+                    || (y + 1 < h && bg_id[i + w] != c));
+            brow[x] = if edge {
+                // A sub-pixel ray hits a surface seen at the pixel or at one of its neighbours.
+                let mut cand = [NO_HIT; 9];
+                let mut n = 0;
+                for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                    for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                        let c = bg_id[yy * w + xx];
+                        if c != NO_HIT && !cand[..n].contains(&c) {
+                            cand[n] = c;
+                            n += 1;
+                        }
+                    }
+                }
                 let xn = (x as f32 - k.cx) / k.fx;
-                let dc = Vector3::new(xn, yn, 1.0);
-                brow[x] = ctx.shade(bg_id[i], bg_depth[i], &dc, &scene.prims, &sp);
-                frow[x] = if id[i] == bg_id[i] {
-                    brow[x]
-                } else {
-                    ctx.shade(id[i] & !MOVER_BIT, depth[i], &dc, movers, &mp)
-                };
-            }
-        });
+                let centre = ctx.shade(
+                    c,
+                    bg_depth[i],
+                    &Vector3::new(xn, yn, 1.0),
+                    &scene.prims,
+                    &sp,
+                );
+                ctx.shade_supersampled(x, y, k, &cand[..n], (c, centre), &scene.prims, &sp)
+            } else {
+                let xn = (x as f32 - k.cx) / k.fx;
+                ctx.shade(
+                    c,
+                    bg_depth[i],
+                    &Vector3::new(xn, yn, 1.0),
+                    &scene.prims,
+                    &sp,
+                )
+            };
+        }
+    });
+    let bg_rgb = &*bg_rgb;
+    rgb.par_chunks_mut(w).enumerate().for_each(|(y, frow)| {
+        let yn = (y as f32 - k.cy) / k.fy;
+        for x in 0..w {
+            let i = y * w + x;
+            frow[x] = if id[i] == bg_id[i] {
+                bg_rgb[i]
+            } else {
+                let xn = (x as f32 - k.cx) / k.fx;
+                ctx.shade(
+                    id[i] & !MOVER_BIT,
+                    depth[i],
+                    &Vector3::new(xn, yn, 1.0),
+                    movers,
+                    &mp,
+                )
+            };
+        }
+    });
 }
 
 struct ShadeCtx<'a> {
@@ -301,6 +352,56 @@ struct ShadeCtx<'a> {
 }
 
 impl ShadeCtx<'_> {
+    /// Average of a 2×2 grid of sub-pixel rays against the candidate primitives `cand`
+    /// (ids seen in the pixel's 3×3 neighbourhood, in increasing distance order of nothing in
+    /// particular: the nearest hit wins, ties go to the lower id).
+    /// Sub-rays that hit the centre's primitive reuse the centre colour `centre.1` (textures
+    /// are prefiltered, so only the silhouette needs the extra samples).
+    fn shade_supersampled(
+        &self,
+        x: usize,
+        y: usize,
+        k: &Intrinsics,
+        cand: &[u32],
+        centre: (u32, Rgb),
+        prims: &[Primitive],
+        prep: &[Prepared],
+    ) -> Rgb {
+        let mut acc = [0.0f32; 3];
+        for (ox, oy) in [
+            (-0.25f32, -0.25f32),
+            (0.25, -0.25),
+            (-0.25, 0.25),
+            (0.25, 0.25),
+        ] {
+            let dc = Vector3::new(
+                (x as f32 + ox - k.cx) / k.fx,
+                (y as f32 + oy - k.cy) / k.fy,
+                1.0,
+            );
+            let mut best = (f32::INFINITY, NO_HIT);
+            for &j in cand {
+                let (Some(p), Some(pp)) = (prims.get(j as usize), prep.get(j as usize)) else {
+                    continue;
+                };
+                if let Some(t) = p.shape.intersect(&pp.o, &(pp.a * dc), self.params.near)
+                    && (t < best.0 || (t == best.0 && j < best.1))
+                {
+                    best = (t, j);
+                }
+            }
+            let c = if best.1 == centre.0 {
+                centre.1
+            } else {
+                self.shade(best.1, best.0, &dc, prims, prep)
+            };
+            for ch in 0..3 {
+                acc[ch] += c[ch] * 0.25;
+            }
+        }
+        acc
+    }
+
     fn shade(
         &self,
         id: u32,

@@ -420,6 +420,46 @@ impl Scene {
             );
         }
 
+        // Sideboard against the near wall with things on it (seen by the loop and rpy cameras).
+        let side = s.add_material(TextureKind::Wood, small, [0.7, 0.7], &mut rng);
+        s.push_box(
+            Vector3::new(0.7, lo.y + 0.22, 0.4),
+            Vector3::new(0.6, 0.2, 0.4),
+            0.0,
+            side,
+        );
+        let doors = s.add_material(TextureKind::Books, small, [1.2, 0.6], &mut rng);
+        s.push_quad(
+            Vector3::new(0.7, lo.y + 0.425, 0.38),
+            -x,
+            z,
+            [0.56, 0.3],
+            doors,
+        );
+        for k in 0..3 {
+            let m = s.add_material(
+                [
+                    TextureKind::Poster,
+                    TextureKind::Checker,
+                    TextureKind::Mosaic,
+                ][k],
+                small,
+                [0.3, 0.3],
+                &mut rng,
+            );
+            let hz = rng.random_range(0.06..0.16);
+            s.push_box(
+                Vector3::new(0.3 + 0.4 * k as f32, lo.y + 0.22, 0.8 + hz),
+                Vector3::new(
+                    rng.random_range(0.06..0.12),
+                    rng.random_range(0.06..0.12),
+                    hz,
+                ),
+                rng.random_range(-0.6..0.6),
+                m,
+            );
+        }
+
         // Cabinet against the left wall with two doors.
         let cab = s.add_material(TextureKind::Wallpaper, small, [0.6, 0.6], &mut rng);
         s.push_box(

@@ -49,7 +49,8 @@ pub enum Preset {
     Flying,
     /// A box passing close in front of a nearly static camera, plus a walker.
     Occlusion,
-    /// Camera loop through the room back to its start, a walker and a seated person.
+    /// Camera loop through the room back to its start (period = max(10 s, sequence length), so
+    /// a sequence of ≥ 300 frames ends where it started), a walker and a seated person.
     Loop,
 }
 
@@ -832,7 +833,7 @@ mod orb_suitability {
 
     fn grey(img: &RgbImage) -> Vec<i32> {
         img.pixels()
-            .map(|p| ((p[0] as i32 * 299 + p[1] as i32 * 587 + p[2] as i32 * 114 + 500) / 1000))
+            .map(|p| (p[0] as i32 * 299 + p[1] as i32 * 587 + p[2] as i32 * 114 + 500) / 1000)
             .collect()
     }
 

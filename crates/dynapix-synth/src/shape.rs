@@ -285,12 +285,9 @@ fn cylinder_side(
         return None;
     }
     let s = disc.sqrt();
-    for t in [(-b - s) / a, (-b + s) / a] {
-        if t > t_min && (o.z + t * d.z).abs() <= half_h {
-            return Some(t);
-        }
-    }
-    None
+    [(-b - s) / a, (-b + s) / a]
+        .into_iter()
+        .find(|&t| t > t_min && (o.z + t * d.z).abs() <= half_h)
 }
 
 /// A placed primitive: shape, local→world pose and material index.

@@ -93,7 +93,8 @@ impl Texture {
     pub fn sample(&self, u: f32, v: f32, lod: f32) -> Rgb {
         let max = (self.levels.len() - 1) as f32;
         let lod = lod.clamp(0.0, max);
-        let l0 = lod.floor() as usize;
+        // lod ≥ 0, so truncation is the floor.
+        let l0 = lod as usize;
         let f = lod - l0 as f32;
         let a = self.bilinear(l0, u, v);
         if f <= 0.0 || l0 + 1 >= self.levels.len() {
@@ -113,12 +114,12 @@ impl Texture {
         let mask = s as i64 - 1;
         let x = u * s as f32 - 0.5;
         let y = v * s as f32 - 0.5;
-        let xf = x.floor();
-        let yf = y.floor();
-        let fx = x - xf;
-        let fy = y - yf;
-        let x0 = (xf as i64) & mask;
-        let y0 = (yf as i64) & mask;
+        let xf = fast_floor(x);
+        let yf = fast_floor(y);
+        let fx = x - xf as f32;
+        let fy = y - yf as f32;
+        let x0 = xf & mask;
+        let y0 = yf & mask;
         let x1 = (x0 + 1) & mask;
         let y1 = (y0 + 1) & mask;
         let at = |xx: i64, yy: i64| lv.data[(yy as usize) * s + xx as usize];
@@ -131,6 +132,14 @@ impl Texture {
         }
         out
     }
+}
+
+/// `floor` as an integer without a libm call (baseline x86-64 has no SSE4.1 `roundss`);
+/// exact for |x| < 2^62.
+#[inline]
+fn fast_floor(x: f32) -> i64 {
+    let t = x as i64;
+    if (t as f32) > x { t - 1 } else { t }
 }
 
 fn to_u8(x: f32) -> u8 {
@@ -292,7 +301,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
     let c2 = muted_colour(rng, light, sat);
     match kind {
         TextureKind::Checker => {
-            let n = 2 * rng.random_range(1..=3) as i32;
+            let n = 2 * rng.random_range(1..=3i32);
             Texture::bake(size, move |u, v| {
                 let a = (u * n as f32).floor() as i32 + (v * n as f32).floor() as i32;
                 let base = if a.rem_euclid(2) == 0 { c1 } else { c2 };
@@ -300,8 +309,8 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
             })
         }
         TextureKind::Brick => {
-            let rows = 2 * rng.random_range(4..=6) as i32;
-            let per_row = rng.random_range(3..=5) as i32;
+            let rows = 2 * rng.random_range(4..=6i32);
+            let per_row = rng.random_range(3..=5i32);
             let mortar = muted_colour(rng, light, 0.1);
             let brick = if rng.random_bool(0.6) {
                 tinted(rng, [0.62, 0.3, 0.2], dark + 0.12, 0.2)
@@ -327,7 +336,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
             })
         }
         TextureKind::Mosaic => {
-            let n = rng.random_range(6..=10) as i32;
+            let n = rng.random_range(6..=10i32);
             let palette: Vec<Rgb> = (0..6)
                 .map(|i| random_colour(rng, 0.15 + 0.13 * i as f32))
                 .collect();
@@ -346,7 +355,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
         }
         TextureKind::Poster => poster(rng, seed, size, c1, c2),
         TextureKind::Wood => {
-            let planks = rng.random_range(3..=6) as i32;
+            let planks = rng.random_range(3..=6i32);
             let c1 = tinted(rng, [0.45, 0.27, 0.13], dark, 0.15);
             let c2 = tinted(rng, [0.75, 0.55, 0.35], light - 0.1, 0.15);
             Texture::bake(size, move |u, v| {
@@ -362,7 +371,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
             })
         }
         TextureKind::Wallpaper => {
-            let n = rng.random_range(4..=7) as i32;
+            let n = rng.random_range(4..=7i32);
             let motif = random_colour(rng, dark);
             let dot = random_colour(rng, 0.45);
             Texture::bake(size, move |u, v| {
@@ -381,7 +390,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
             })
         }
         TextureKind::Books => {
-            let n_books = rng.random_range(10..=18) as i32;
+            let n_books = rng.random_range(10..=18i32);
             let palette: Vec<Rgb> = (0..8)
                 .map(|i| random_colour(rng, 0.12 + 0.1 * i as f32))
                 .collect();
@@ -421,7 +430,7 @@ pub fn generate(kind: TextureKind, size: usize, rng: &mut ChaCha8Rng) -> Texture
         }
         TextureKind::Fabric => {
             let plaid = rng.random_bool(0.5);
-            let n = rng.random_range(3..=8) as i32;
+            let n = rng.random_range(3..=8i32);
             Texture::bake(size, move |u, v| {
                 let sx = ((u * n as f32).fract() < 0.35) as i32;
                 let sy = ((v * n as f32).fract() < 0.35) as i32;

@@ -39,6 +39,9 @@ pub fn look_at(eye: &Point3<f64>, target: &Point3<f64>) -> UnitQuaternion<f64> {
     UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m))
 }
 
+/// Shortest loop period (s) that keeps the loop within walking speed (≤ 0.5 m/s, ≤ 40°/s).
+pub const MIN_LOOP_PERIOD: f64 = 10.0;
+
 /// Kind of camera motion.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MotionKind {
@@ -131,7 +134,7 @@ impl CameraMotion {
         Self {
             kind,
             rig,
-            loop_period: 24.0,
+            loop_period: MIN_LOOP_PERIOD,
             waves,
         }
     }
@@ -184,15 +187,15 @@ impl CameraMotion {
                 (eye, look_at(&eye, &(rig.target + wobble_tgt)))
             }
             MotionKind::Loop => {
-                // Ellipse around the room centre, looking at a point that runs ahead of the
-                // camera on a larger ellipse, so the view sweeps all walls once per loop.
+                // Circle around the room centre, looking across the centre at the opposite
+                // side: the view turns at a uniform rate and sweeps all walls once per loop.
                 let th = TAU * t / self.loop_period - PI / 2.0;
                 let c = Vector3::new(0.2, 0.1, 1.35);
                 let eye = Point3::from(
-                    c + Vector3::new(0.9 * th.cos(), 0.6 * th.sin(), 0.08 * (2.0 * th).sin()),
+                    c + Vector3::new(0.55 * th.cos(), 0.55 * th.sin(), 0.06 * (2.0 * th).sin()),
                 );
-                let ta = th + 2.2;
-                let target = Point3::new(0.2 + 2.0 * ta.cos(), 0.3 + 1.8 * ta.sin(), 0.9);
+                let ta = th + PI;
+                let target = Point3::new(c.x + 2.0 * ta.cos(), c.y + 2.0 * ta.sin(), 0.95);
                 (
                     eye + wobble_eye * 0.5,
                     look_at(&eye, &(target + wobble_tgt)),
