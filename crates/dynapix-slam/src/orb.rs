@@ -367,7 +367,8 @@ const PATTERN_REACH: usize = 19;
 /// rBRIEF: 256 intensity comparisons of the learned pattern rotated by `angle_deg`, sampled on
 /// the blurred level image around (x, y). Offsets are rounded half to even as `cvRound`.
 fn describe(img: &Plane, x: usize, y: usize, angle_deg: f32) -> Descriptor {
-    let ang = angle_deg * (std::f32::consts::PI / 180.0);
+    // As upstream: factorPI = (float)(CV_PI / 180).
+    let ang = angle_deg * (std::f64::consts::PI / 180.0) as f32;
     let (a, b) = (ang.cos(), ang.sin());
     let pat = &*PATTERN_SOA;
     let mut dx = [0i32; 512];
