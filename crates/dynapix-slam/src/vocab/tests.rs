@@ -311,3 +311,27 @@ fn feature_vector_depth_follows_levels_up() {
         }
     }
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(200))]
+
+    /// Random edits of a valid text vocabulary give a vocabulary or an error, never a panic.
+    #[test]
+    fn text_parser_never_panics(pos in 0usize..4000, byte in 0u8..128, cut in 0usize..4000) {
+        let mut t = tiny_text().into_bytes();
+        let p = pos % t.len();
+        t[p] = byte;
+        t.truncate(cut.max(1).min(t.len()));
+        let _ = Vocabulary::from_orbvoc_text(std::io::Cursor::new(t));
+    }
+
+    /// Random binary input behind a valid header never panics.
+    #[test]
+    fn binary_parser_never_panics(data in proptest::collection::vec(0u8..=255, 0..300), n in 0u32..20) {
+        let mut b = tiny().to_bytes();
+        b.truncate(32);
+        b[28..32].copy_from_slice(&n.to_le_bytes());
+        b.extend_from_slice(&data);
+        let _ = Vocabulary::from_bytes(&b);
+    }
+}
