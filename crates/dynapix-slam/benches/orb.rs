@@ -1,8 +1,10 @@
-//! ORB extraction time per 640×480 fr1_xyz frame (TUM settings), and vocabulary transform time.
+//! ORB extraction time per 640×480 fr1_xyz frame (TUM settings), loading the embedded
+//! vocabulary, and the BoW transform of one frame's descriptors.
 //! Run: `cargo bench -p dynapix-slam --bench orb`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
+use dynapix_slam::vocab::Vocabulary;
 use std::hint::black_box;
 use std::path::PathBuf;
 
@@ -54,6 +56,17 @@ fn bench(c: &mut Criterion) {
     }
     c.bench_function("orb_extract_640x480_fr1_xyz", |b| {
         b.iter(|| black_box(orb.extract(black_box(&img))))
+    });
+    c.bench_function("vocab_load_embedded_default", |b| {
+        b.iter(|| black_box(Vocabulary::embedded_default().ok()))
+    });
+    let Ok(voc) = Vocabulary::embedded_default() else {
+        eprintln!("embedded vocabulary does not load");
+        return;
+    };
+    let (_, descs) = orb.extract(&img);
+    c.bench_function("vocab_transform_1000_descriptors", |b| {
+        b.iter(|| black_box(voc.transform(black_box(&descs))))
     });
 }
 

@@ -13,9 +13,11 @@
 //! Harris responses, caps candidates before the distribution and drops keypoints within 20 px of
 //! the border after it, so feature counts and positions differ from ORB-SLAM2's.
 //!
-//! Deliberate, documented deviations from the reference: OpenCV's 8-bit Gaussian kernel
-//! quantisation is approximated (kernel rounded to 1/256 with the remainder on the centre tap),
-//! and octree tie-breaks by heap address are replaced by creation order.
+//! Arithmetic follows OpenCV's 8-bit paths (fixed-point bilinear resize, bit-exact 8.8 fixed-point
+//! Gaussian with error-diffused kernel, `fastAtan2`, `cvRound`) as read from its documented
+//! behaviour; it could not be compared bit for bit with OpenCV here (no OpenCV available), so
+//! treat exact equality with upstream descriptors as likely, not proven. Deliberate deviation:
+//! octree tie-breaks by heap address are replaced by creation order.
 
 mod fast;
 mod imgproc;
@@ -367,7 +369,8 @@ const PATTERN_REACH: usize = 19;
 /// rBRIEF: 256 intensity comparisons of the learned pattern rotated by `angle_deg`, sampled on
 /// the blurred level image around (x, y). Offsets are rounded half to even as `cvRound`.
 fn describe(img: &Plane, x: usize, y: usize, angle_deg: f32) -> Descriptor {
-    let ang = angle_deg * (std::f32::consts::PI / 180.0);
+    // As upstream: factorPI = (float)(CV_PI / 180).
+    let ang = angle_deg * (std::f64::consts::PI / 180.0) as f32;
     let (a, b) = (ang.cos(), ang.sin());
     let pat = &*PATTERN_SOA;
     let mut dx = [0i32; 512];

@@ -120,36 +120,73 @@ pub(crate) fn detect_roi(
     let off = offsets(stride);
     let data = &img.data[..];
     let t = threshold.clamp(0, 255) as u8;
-    scratch.scores.clear();
-    scratch.scores.resize(rw * rh, 0);
+    // `scores` is all zeros between calls: entries written below are reset before returning.
+    if scratch.scores.len() < rw * rh {
+        scratch.scores.resize(rw * rh, 0);
+    }
     scratch.cands.clear();
     scratch.flags.clear();
     scratch.flags.resize(rw, 0);
     let n = rw - 6;
     for ry in 3..rh - 3 {
         let y = y0 + ry;
-        let row = &data[y * stride + x0..y * stride + x1];
-        let up = &data[(y - 3) * stride + x0..(y - 3) * stride + x1];
-        let dn = &data[(y + 3) * stride + x0..(y + 3) * stride + x1];
-        // Quick branch-free pre-test on the compass pixels 0 (up), 4 (right), 8 (down),
-        // 12 (left): any 9-arc contains two neighbouring compass pixels of its class.
-        let (c, rt, lt, u, d) = (
-            &row[3..3 + n],
-            &row[6..6 + n],
-            &row[..n],
-            &up[3..3 + n],
-            &dn[3..3 + n],
-        );
+        // Slice k holds circle pixel k of every pixel of this row's detection span.
+        let circle: [&[u8]; 16] = std::array::from_fn(|k| {
+            let (dx, dy) = CIRCLE[k];
+            let start = ((y as isize + dy) * stride as isize + (x0 + 3) as isize + dx) as usize;
+            &data[start..start + n]
+        });
+        let c = &data[y * stride + x0 + 3..y * stride + x0 + 3 + n];
+        // Branch-free necessary condition (vectorised): a 9-arc contains one pixel of every
+        // opposite pair (k, k+8), so each pair must have a member of the arc's class.
         let flags = &mut scratch.flags[..n];
+        let c = &c[..n];
+        let [
+            q0,
+            q1,
+            q2,
+            q3,
+            q4,
+            q5,
+            q6,
+            q7,
+            q8,
+            q9,
+            q10,
+            q11,
+            q12,
+            q13,
+            q14,
+            q15,
+        ] = circle;
+        let (q0, q1, q2, q3) = (&q0[..n], &q1[..n], &q2[..n], &q3[..n]);
+        let (q4, q5, q6, q7) = (&q4[..n], &q5[..n], &q6[..n], &q7[..n]);
+        let (q8, q9, q10, q11) = (&q8[..n], &q9[..n], &q10[..n], &q11[..n]);
+        let (q12, q13, q14, q15) = (&q12[..n], &q13[..n], &q14[..n], &q15[..n]);
         for i in 0..n {
             let v = c[i];
             let hi = v.saturating_add(t);
             let lo = v.saturating_sub(t);
-            let (b0, b4, b8, b12) = (u[i] > hi, rt[i] > hi, d[i] > hi, lt[i] > hi);
-            let (d0, d4, d8, d12) = (u[i] < lo, rt[i] < lo, d[i] < lo, lt[i] < lo);
-            let bright = (b0 & b4) | (b4 & b8) | (b8 & b12) | (b12 & b0);
-            let dark = (d0 & d4) | (d4 & d8) | (d8 & d12) | (d12 & d0);
-            flags[i] = (bright | dark) as u8;
+            // Per pixel k: 0xFF-style masks as u8 (1 = brighter / darker than the centre ± t).
+            let b = |p: u8| (p > hi) as u8;
+            let d = |p: u8| (p < lo) as u8;
+            let bright = (b(q0[i]) | b(q8[i]))
+                & (b(q1[i]) | b(q9[i]))
+                & (b(q2[i]) | b(q10[i]))
+                & (b(q3[i]) | b(q11[i]))
+                & (b(q4[i]) | b(q12[i]))
+                & (b(q5[i]) | b(q13[i]))
+                & (b(q6[i]) | b(q14[i]))
+                & (b(q7[i]) | b(q15[i]));
+            let dark = (d(q0[i]) | d(q8[i]))
+                & (d(q1[i]) | d(q9[i]))
+                & (d(q2[i]) | d(q10[i]))
+                & (d(q3[i]) | d(q11[i]))
+                & (d(q4[i]) | d(q12[i]))
+                & (d(q5[i]) | d(q13[i]))
+                & (d(q6[i]) | d(q14[i]))
+                & (d(q7[i]) | d(q15[i]));
+            flags[i] = bright | dark;
         }
         let candidates = &mut scratch.idx;
         candidates.clear();
@@ -201,6 +238,9 @@ pub(crate) fn detect_roi(
         if keep {
             out.push(*cand);
         }
+    }
+    for cand in &scratch.cands {
+        scratch.scores[cand.y * rw + cand.x] = 0;
     }
 }
 

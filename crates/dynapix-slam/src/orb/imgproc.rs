@@ -110,8 +110,9 @@ fn reflect101(i: isize, n: usize) -> usize {
     i as usize
 }
 
-/// 7-tap Gaussian kernel for σ in 8-bit fixed point (sum 256), the way OpenCV quantises
-/// Gaussian kernels for 8-bit images; the centre tap absorbs the rounding remainder.
+/// Gaussian kernel of `2·radius+1` taps for σ in 8-bit fixed point (sum exactly 256), quantised
+/// as OpenCV's bit-exact 8-bit smoothing does (`getGaussianKernelFixedPoint_ED`): outer taps
+/// rounded with error diffusion towards the centre, the centre tap takes the remainder.
 fn gaussian_kernel_q8(radius: usize, sigma: f64) -> Vec<i32> {
     let raw: Vec<f64> = (0..=2 * radius)
         .map(|i| {
@@ -120,12 +121,18 @@ fn gaussian_kernel_q8(radius: usize, sigma: f64) -> Vec<i32> {
         })
         .collect();
     let sum: f64 = raw.iter().sum();
-    let mut k: Vec<i32> = raw
-        .iter()
-        .map(|v| (v / sum * 256.0).round() as i32)
-        .collect();
-    let total: i32 = k.iter().sum();
-    k[radius] += 256 - total;
+    let mut k = vec![0i32; 2 * radius + 1];
+    let mut err = 0.0f64;
+    let mut total = 0i32;
+    for i in 0..radius {
+        let adj = raw[i] / sum * 256.0 + err;
+        let v = adj.round_ties_even();
+        err = adj - v;
+        k[i] = v as i32;
+        k[2 * radius - i] = v as i32;
+        total += 2 * v as i32;
+    }
+    k[radius] = 256 - total;
     k
 }
 
@@ -304,6 +311,8 @@ mod tests {
     fn blur_kernel_sums_to_256_and_keeps_constants() {
         let k = gaussian_kernel_q8(3, 2.0);
         assert_eq!(k.iter().sum::<i32>(), 256);
+        // 256 · [0.0702, 0.1311, 0.1907, 0.2161]: 17.96, 33.56, 48.82 with error diffusion.
+        assert_eq!(k, vec![18, 34, 48, 56, 48, 34, 18]);
         assert!(k.windows(2).take(3).all(|w| w[0] <= w[1]));
         let p = Plane {
             w: 9,

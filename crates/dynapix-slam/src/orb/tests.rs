@@ -226,3 +226,18 @@ fn gray_conversions() {
     assert_eq!(s.get_pixel(0, 0).0[0], 29); // 0.114 · 255
     assert_eq!(s.get_pixel(1, 0).0[0], 128); // 1.14 + 117.4 + 8.97 = 127.5
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+
+    /// Any image size and content: no panic, consistent outputs inside the image.
+    #[test]
+    fn extract_never_panics(w in 0u32..200, h in 0u32..200, seed in 0u64..1000) {
+        let img = if w > 0 && h > 0 { synthetic(w, h, seed) } else { GrayImage::new(w, h) };
+        let (k, d) = OrbExtractor::default().extract(&img);
+        proptest::prop_assert_eq!(k.len(), d.len());
+        for kp in &k {
+            proptest::prop_assert!(kp.x >= 0.0 && kp.x < w as f32 && kp.y >= 0.0 && kp.y < h as f32);
+        }
+    }
+}

@@ -274,3 +274,64 @@ fn embedded_default_loads_and_ranks_neighbours_higher() {
     eprintln!("score neighbour {near:.4}, distant {distant:.4}");
     assert!(near > distant, "neighbour {near} vs distant {distant}");
 }
+
+#[test]
+fn feature_vector_depth_follows_levels_up() {
+    let imgs = random_images(10, 400, 11);
+    let p = TrainParams {
+        k: 5,
+        levels: 3,
+        ..TrainParams::default()
+    };
+    let v = Vocabulary::train(&imgs, &p).unwrap_or_else(|e| panic!("{e}"));
+    let descs = &imgs[0];
+    for (levels_up, depth) in [(0usize, 3usize), (1, 2), (2, 1), (4, 1)] {
+        assert_eq!(v.group_depth(levels_up), depth);
+        let (bow, fv) = v.transform_with_levels_up(descs, levels_up);
+        let mut seen: Vec<usize> = fv.iter().flat_map(|g| g.1.iter().copied()).collect();
+        let n = seen.len();
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen.len(), n, "a feature in two groups");
+        assert!(fv.as_slice().windows(2).all(|w| w[0].0 < w[1].0));
+        for (node, feats) in fv.iter() {
+            // Groups sit at the requested depth, or are leaves above it.
+            let d = v.node_depth(*node).unwrap_or(99);
+            assert!(d == depth || (d < depth && v.children(*node as usize).is_empty()));
+            // Each grouped feature's word lies under the group node.
+            for &f in feats {
+                let (word, _) = v.word_of(&descs[f]);
+                let mut up = v.node_of_word[word as usize];
+                while v.node_depth(up).unwrap_or(0) > d {
+                    up = v.parent(up).unwrap_or(0);
+                }
+                assert_eq!(up, *node);
+                assert!(bow.get(word).is_some());
+            }
+        }
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(200))]
+
+    /// Random edits of a valid text vocabulary give a vocabulary or an error, never a panic.
+    #[test]
+    fn text_parser_never_panics(pos in 0usize..4000, byte in 0u8..128, cut in 0usize..4000) {
+        let mut t = tiny_text().into_bytes();
+        let p = pos % t.len();
+        t[p] = byte;
+        t.truncate(cut.max(1).min(t.len()));
+        let _ = Vocabulary::from_orbvoc_text(std::io::Cursor::new(t));
+    }
+
+    /// Random binary input behind a valid header never panics.
+    #[test]
+    fn binary_parser_never_panics(data in proptest::collection::vec(0u8..=255, 0..300), n in 0u32..20) {
+        let mut b = tiny().to_bytes();
+        b.truncate(32);
+        b[28..32].copy_from_slice(&n.to_le_bytes());
+        b.extend_from_slice(&data);
+        let _ = Vocabulary::from_bytes(&b);
+    }
+}
