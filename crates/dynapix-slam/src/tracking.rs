@@ -259,12 +259,6 @@ impl Tracker {
                 (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
             {
                 self.velocity = Some(normalized(&(cur * last.inverse())));
-                tracing::debug!(
-                    frame = frame.id,
-                    vel_t = self.velocity.map(|v| v.translation.vector.norm()),
-                    vel_r = self.velocity.map(|v| v.rotation.angle()),
-                    "velocity"
-                );
             } else {
                 self.velocity = None;
             }
@@ -401,36 +395,6 @@ impl Tracker {
         frame.pose = Some(normalized(&result.pose));
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
-        }
-        if tracing::enabled!(tracing::Level::TRACE) {
-            let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
-            for (k, &i) in idx.iter().enumerate() {
-                if frame.outlier[i] {
-                    continue;
-                }
-                let pc = transform(&result.pose, &problem.points[k]);
-                if let Some((u, v, ur)) = self.cam.project(&pc) {
-                    let o = &problem.observations[k];
-                    let lv = (frame.keys_un[i].octave as usize).min(7);
-                    per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
-                    per[lv].1 += 1;
-                    if let Some(r) = o.u_right {
-                        per[lv].2 += (ur - r).abs();
-                    }
-                }
-            }
-            let s: Vec<String> = per
-                .iter()
-                .map(|(e, n, r)| {
-                    format!(
-                        "{}:{:.2}/{:.2}",
-                        n,
-                        e / (*n).max(1) as f64,
-                        r / (*n).max(1) as f64
-                    )
-                })
-                .collect();
-            tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
         }
         result.num_inliers
     }

@@ -82,7 +82,7 @@ fn bad_frames_are_lost_then_relocalised_without_panic() {
     };
     let mut sys = System::new(Orb(OrbExtractor::default()), fr1(), SystemParams::default())
         .with_vocabulary(Vocabulary::embedded_default().unwrap());
-    let mut run = |i: usize, sys: &mut System<Orb>, mode: u8| {
+    let run = |i: usize, sys: &mut System<Orb>, mode: u8| {
         let (t, r) = &rgb[i];
         let (mut g, mut d) = load(&dir, r, &nearest(*t));
         match mode {
