@@ -50,11 +50,11 @@ impl<T> Arena<T> {
 
     fn insert(&mut self, value: T) -> (u32, u32) {
         self.len += 1;
-        if let Some(i) = self.free.pop() {
-            if let Some(slot) = self.slots.get_mut(i as usize) {
-                slot.value = Some(value);
-                return (i, slot.generation);
-            }
+        if let Some(i) = self.free.pop()
+            && let Some(slot) = self.slots.get_mut(i as usize)
+        {
+            slot.value = Some(value);
+            return (i, slot.generation);
         }
         self.slots.push(Slot {
             generation: 0,

@@ -14,6 +14,7 @@ use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid, Wei
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::map::{KeyFrameId, Map, MapParams};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
+use crate::vocab::Vocabulary;
 
 /// Produces keypoints (level-0 image coordinates) and descriptors from a grey image.
 pub trait FeatureExtractor {
@@ -77,6 +78,8 @@ pub struct FrameResult {
     pub inliers: usize,
     /// The map was reset (lost right after initialisation).
     pub reset: bool,
+    /// The frame was relocalised against the map.
+    pub relocalised: bool,
     /// Step timings.
     pub times: StepTimes,
     /// Local-mapping counters when a keyframe was processed.
@@ -114,6 +117,7 @@ pub struct System<E> {
     mapper: LocalMapper,
     records: Vec<Record>,
     next_index: u64,
+    vocab: Option<Vocabulary>,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -129,7 +133,15 @@ impl<E: FeatureExtractor> System<E> {
             cam,
             records: Vec::new(),
             next_index: 0,
+            vocab: None,
         }
+    }
+
+    /// Uses `vocab` for bag-of-words matching and relocalisation candidates (without one,
+    /// keyframe matching is brute force and relocalisation tries the most recent keyframes).
+    pub fn with_vocabulary(mut self, vocab: Vocabulary) -> Self {
+        self.vocab = Some(vocab);
+        self
     }
 
     /// The map.
@@ -165,11 +177,13 @@ impl<E: FeatureExtractor> System<E> {
             self.bounds,
         );
         let num_keypoints = frame.len();
-        let out = self.tracker.track(&mut self.map, frame);
+        let out = self
+            .tracker
+            .track(&mut self.map, frame, self.vocab.as_ref());
         let t2 = Instant::now();
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
-            mapping = Some(self.mapper.process(&mut self.map, kf));
+            mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
         }
         let t3 = Instant::now();
         let mut reset = false;
@@ -201,6 +215,7 @@ impl<E: FeatureExtractor> System<E> {
             num_keypoints,
             inliers: out.inliers,
             reset,
+            relocalised: out.relocalised,
             times: StepTimes {
                 extract: (t1 - t0).as_secs_f64(),
                 track: (t2 - t1).as_secs_f64(),

@@ -13,6 +13,7 @@ use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem, StereoCamera};
 use crate::frame::{Frame, RgbdCamera, normalized, transform};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams, ProjectionCandidate};
+use crate::vocab::Vocabulary;
 
 pub use relocalization::RelocParams;
 
@@ -72,6 +73,8 @@ pub struct TrackingParams {
     pub min_frames: u64,
     /// Close points a new keyframe creates at least (100).
     pub kf_new_points: usize,
+    /// Vocabulary tree depth at which features are grouped for BoW matching (2).
+    pub bow_group_depth: usize,
     /// Reset the map when lost with at most this many keyframes (5).
     pub reset_max_keyframes: usize,
     /// Pose-only optimisation.
@@ -107,6 +110,7 @@ impl Default for TrackingParams {
             min_frames: 0,
             kf_new_points: 100,
             reset_max_keyframes: 5,
+            bow_group_depth: 2,
             pose: PoseOnlyParams::default(),
             matcher: MatcherParams::default(),
             reloc: RelocParams::default(),
@@ -191,7 +195,12 @@ impl Tracker {
 
     /// Tracks one frame: initialises, tracks or relocalises, then decides on a keyframe
     /// (ORB-SLAM2 `Tracking::Track`).
-    pub fn track(&mut self, map: &mut Map, mut frame: Frame) -> TrackOutcome {
+    pub fn track(
+        &mut self,
+        map: &mut Map,
+        mut frame: Frame,
+        vocab: Option<&Vocabulary>,
+    ) -> TrackOutcome {
         let mut out = TrackOutcome {
             state: self.state,
             pose: None,
@@ -220,14 +229,17 @@ impl Tracker {
         if self.state == TrackingState::Ok {
             let just_relocalised = frame.id < self.last_reloc_frame + 2;
             if self.velocity.is_none() || just_relocalised {
-                ok = self.track_reference_keyframe(map, &mut frame);
+                ok = self.track_reference_keyframe(map, &mut frame, vocab);
             } else {
                 ok = self.track_with_motion_model(map, &mut frame);
                 if !ok {
-                    ok = self.track_reference_keyframe(map, &mut frame);
+                    ok = self.track_reference_keyframe(map, &mut frame, vocab);
                 }
             }
         } else {
+            if let Some(v) = vocab {
+                frame.compute_bow(v, self.params.bow_group_depth);
+            }
             ok = self.relocalize(map, &mut frame);
             out.relocalised = ok;
         }
@@ -247,12 +259,6 @@ impl Tracker {
                 (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
             {
                 self.velocity = Some(normalized(&(cur * last.inverse())));
-                tracing::debug!(
-                    frame = frame.id,
-                    vel_t = self.velocity.map(|v| v.translation.vector.norm()),
-                    vel_r = self.velocity.map(|v| v.rotation.angle()),
-                    "velocity"
-                );
             } else {
                 self.velocity = None;
             }
@@ -390,36 +396,6 @@ impl Tracker {
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
         }
-        if tracing::enabled!(tracing::Level::TRACE) {
-            let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
-            for (k, &i) in idx.iter().enumerate() {
-                if frame.outlier[i] {
-                    continue;
-                }
-                let pc = transform(&result.pose, &problem.points[k]);
-                if let Some((u, v, ur)) = self.cam.project(&pc) {
-                    let o = &problem.observations[k];
-                    let lv = (frame.keys_un[i].octave as usize).min(7);
-                    per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
-                    per[lv].1 += 1;
-                    if let Some(r) = o.u_right {
-                        per[lv].2 += (ur - r).abs();
-                    }
-                }
-            }
-            let s: Vec<String> = per
-                .iter()
-                .map(|(e, n, r)| {
-                    format!(
-                        "{}:{:.2}/{:.2}",
-                        n,
-                        e / (*n).max(1) as f64,
-                        r / (*n).max(1) as f64
-                    )
-                })
-                .collect();
-            tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
-        }
         result.num_inliers
     }
 
@@ -440,7 +416,15 @@ impl Tracker {
         n
     }
 
-    fn track_reference_keyframe(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+    fn track_reference_keyframe(
+        &mut self,
+        map: &mut Map,
+        frame: &mut Frame,
+        vocab: Option<&Vocabulary>,
+    ) -> bool {
+        if let Some(v) = vocab {
+            frame.compute_bow(v, self.params.bow_group_depth);
+        }
         let Some(rk) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
             return false;
         };
