@@ -10,28 +10,26 @@ use dynapix_eval::{
 };
 use std::path::{Path, PathBuf};
 
-/// Arguments of `dynapix eval`.
-///
-/// Three modes:
-///
-/// 1. One trajectory: `dynapix eval --gt groundtruth.txt --est CameraTrajectory.txt
-///    [--reference associations.txt] [--json] [--plot DIR]`.
-///
-/// 2. Many runs on one sequence: `dynapix eval --gt groundtruth.txt --runs RUNS
-///    [--reference associations.txt] [--out DIR]`, where RUNS holds one sub-folder per
-///    method with one TUM trajectory `.txt` per run (the layout of the reference eval.py).
-///    Prints per-method mean ± std of ATE RMSE and TR.
-///
-/// 3. Many sequences (a table shaped like the paper's, with Average and ATR rows):
-///    `dynapix eval --sequence walking_xyz=GT:RUNS[:REFERENCE] --sequence ... [--out DIR]`,
-///    repeated once per sequence (paths must not contain ':').
-///
-/// With `--out DIR`, modes 2 and 3 write DIR/table.md, DIR/table.csv and DIR/table.json.
-/// With `--json`, mode 1 prints one JSON object (at least `ate_rmse_m`, `pairs`, and with
-/// `--reference` also `tracking_rate` and `missing_time_s`); modes 2 and 3 print the table
-/// as JSON.
+/// How the three modes of `dynapix eval` are called (shown after the options in `--help`).
+const MODES: &str = "\
+Modes:
+  One trajectory:
+    dynapix eval --gt groundtruth.txt --est CameraTrajectory.txt [--reference associations.txt]
+                 [--json] [--plot DIR] [--rpe | --rpe-delta S | --rpe-frames N]
+  Many runs on one sequence (RUNS/<method>/<run>.txt, like the reference eval.py):
+    dynapix eval --gt groundtruth.txt --runs RUNS [--reference associations.txt] [--out DIR]
+    -> per method mean ± std of ATE RMSE and tracking rate
+  Several sequences (paper-style table with Average and ATR rows):
+    dynapix eval --sequence walking_xyz=GT:RUNS[:REFERENCE] --sequence ... [--out DIR]
+    (one --sequence per sequence; paths must not contain ':')
+
+--out DIR writes DIR/table.md, table.csv and table.json. With --json, one trajectory prints
+one JSON object (at least ate_rmse_m and pairs; with --reference also tracking_rate and
+missing_time_s); the table modes print the table as JSON.";
+
+/// Arguments of `dynapix eval` (see [`MODES`]).
 #[derive(clap::Args, Debug)]
-#[command(verbatim_doc_comment)]
+#[command(after_help = MODES)]
 pub struct Args {
     /// Ground-truth trajectory (TUM format: timestamp tx ty tz qx qy qz qw).
     #[arg(long, value_name = "FILE")]
