@@ -119,8 +119,25 @@ PY
     fail=1
   fi
 done
+echo
+echo "With scale (evo_ape -as vs dynapix eval --sim3):"
+printf '%-20s %14s %14s %9s\n' sequence evo_rmse dynapix_rmse diff
+for entry in "${pairs[@]}"; do
+  IFS='|' read -r name gt est mode <<<"$entry"
+  [ "$mode" = "info" ] && continue
+  .venv/bin/evo_ape tum "$gt" "$est" -as --t_max_diff 0.02 --save_results "$tmp/$name-sim3.zip" \
+    --no_warnings >/dev/null
+  evo_rmse="$(.venv/bin/python -c 'import json,sys,zipfile; print("%.12f" % json.loads(zipfile.ZipFile(sys.argv[1]).read("stats.json"))["rmse"])' "$tmp/$name-sim3.zip")"
+  dp_rmse="$("$dynapix" eval --json --sim3 --gt "$gt" --est "$est" | python3 -c 'import json,sys; print("%.12f" % json.load(sys.stdin)["ate_rmse_m"])')"
+  diff="$(python3 -c "print(f'{abs($evo_rmse-$dp_rmse):.2e}')")"
+  printf '%-20s %14s %14s %9s\n' "$name" "$evo_rmse" "$dp_rmse" "$diff"
+  if ! python3 -c "import sys; sys.exit(0 if abs($evo_rmse-$dp_rmse) <= $tol else 1)"; then
+    echo "  MISMATCH: |evo - dynapix| > $tol (Sim3)" >&2
+    fail=1
+  fi
+done
 if [ "$fail" -ne 0 ]; then
   echo "FAILED: dynapix eval differs from evo_ape" >&2
   exit 1
 fi
-echo "OK: dynapix eval matches evo_ape -a (golden rows) and the TUM transcription (all rows) within $tol m"
+echo "OK: dynapix eval matches evo_ape -a / -as (golden rows) and the TUM transcription (all rows) within $tol m"
