@@ -49,7 +49,9 @@ pub fn associate(first: &[f64], second: &[f64], params: &AssocParams) -> Vec<(us
         None => true,
     };
 
-    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    // (difference, first stamp, second stamp, i, j): the key Python sorts by, with the
+    // indices making every key unique, so an unstable sort is still deterministic.
+    let mut candidates: Vec<(f64, f64, f64, usize, usize)> = Vec::new();
     for (i, &a) in first.iter().enumerate() {
         if !a.is_finite() || !in_window(a) {
             continue;
@@ -65,21 +67,21 @@ pub fn associate(first: &[f64], second: &[f64], params: &AssocParams) -> Vec<(us
             // Same expression as associate.py: abs(a - (b + offset)).
             let diff = (a - (b + params.offset)).abs();
             if diff < params.max_diff && in_window(b) {
-                candidates.push((diff, i, j));
+                candidates.push((diff, a, b, i, j));
             }
         }
     }
-    candidates.sort_by(|x, y| {
+    candidates.sort_unstable_by(|x, y| {
         x.0.total_cmp(&y.0)
-            .then(first[x.1].total_cmp(&first[y.1]))
-            .then(second[x.2].total_cmp(&second[y.2]))
-            .then(x.1.cmp(&y.1))
-            .then(x.2.cmp(&y.2))
+            .then(x.1.total_cmp(&y.1))
+            .then(x.2.total_cmp(&y.2))
+            .then(x.3.cmp(&y.3))
+            .then(x.4.cmp(&y.4))
     });
     let mut used_first = vec![false; first.len()];
     let mut used_second = vec![false; second.len()];
     let mut matches = Vec::new();
-    for (_, i, j) in candidates {
+    for (_, _, _, i, j) in candidates {
         if !used_first[i] && !used_second[j] {
             used_first[i] = true;
             used_second[j] = true;

@@ -56,6 +56,11 @@ pub enum EvalError {
         /// What is wrong.
         reason: String,
     },
+    /// Reading or writing a file through `dynapix-io` failed (the message names the file and
+    /// line). Its message already contains the cause, so it is not chained again as a
+    /// `source` (that would print the OS error twice).
+    #[error("{0}")]
+    File(dynapix_io::IoError),
     /// Plot rendering failed.
     #[error("plot {path}: {reason}")]
     Plot {
@@ -72,6 +77,12 @@ pub enum EvalError {
         /// What is wrong.
         reason: String,
     },
+}
+
+impl From<dynapix_io::IoError> for EvalError {
+    fn from(e: dynapix_io::IoError) -> Self {
+        Self::File(e)
+    }
 }
 
 /// Result alias of the crate.

@@ -11,11 +11,7 @@ use std::path::{Path, PathBuf};
 
 /// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw`, `#` comments, commas/tabs).
 pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Se3)>> {
-    let t = dynapix_io::Trajectory::read_tum(path).map_err(|e| EvalError::Parse {
-        path: path.to_path_buf(),
-        line: 0,
-        reason: e.to_string(),
-    })?;
+    let t = dynapix_io::Trajectory::read_tum(path)?;
     Ok(t.poses.into_iter().map(|p| (p.t, p.pose)).collect())
 }
 
@@ -190,11 +186,7 @@ pub fn write_table(dir: &Path, table: &PaperTable) -> Result<Vec<PathBuf>> {
         ("table.json", table.to_json()),
     ] {
         let p = dir.join(name);
-        dynapix_io::write_atomic(&p, text.as_bytes()).map_err(|e| EvalError::Parse {
-            path: p.clone(),
-            line: 0,
-            reason: e.to_string(),
-        })?;
+        dynapix_io::write_atomic(&p, text.as_bytes())?;
         written.push(p);
     }
     Ok(written)

@@ -103,6 +103,7 @@ fn draw_top_view<DB: DrawingBackend>(
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], est_color));
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .label_font((FAMILY, 14))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
@@ -140,7 +141,7 @@ fn draw_error_over_time<DB: DrawingBackend>(
     chart
         .draw_series(LineSeries::new(
             ate.pairs.iter().map(|p| (p.t_gt - t0, p.error)),
-            color.stroke_width(2),
+            color.stroke_width(1),
         ))
         .map_err(|e| e.to_string())?
         .label("ATE")
@@ -157,6 +158,7 @@ fn draw_error_over_time<DB: DrawingBackend>(
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], rmse_color));
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .label_font((FAMILY, 14))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)

@@ -2,7 +2,7 @@
 //! (spec §4.4): for every estimated pose i, pair it with the estimated pose j closest to
 //! `t_i + Δt` (time delta) or `i + N` (frame delta); look up the ground-truth poses closest
 //! to both stamps (rejecting the pair if either is further than twice the median
-//! ground-truth interval); the error is `(E_i⁻¹E_j)⁻¹·(G_i⁻¹G_j)`, reported as translation
+//! ground-truth interval); the error is `(E_i⁻¹E_j)·(G_i⁻¹G_j)⁻¹`, reported as translation
 //! (metres) and rotation angle (degrees).
 //!
 //! Difference to the TUM tool: all pairs are used (the tool samples 10 000 at random when
@@ -134,7 +134,10 @@ pub fn rpe(gt: &[(f64, Se3)], est: &[(f64, Se3)], params: &RpeParams) -> Result<
         let mut est_rel = est[i].1.inverse() * est[j].1;
         est_rel.translation.vector *= params.scale;
         let gt_rel = gt[g0].1.inverse() * gt[g1].1;
-        let err = est_rel.inverse() * gt_rel;
+        // TUM: ominus(ominus(E_j, E_i), ominus(G_j, G_i)) with ominus(a, b) = a⁻¹·b, i.e.
+        // (E_i⁻¹E_j)·(G_i⁻¹G_j)⁻¹. The rotation angle is the same either way round, the
+        // translation is not, so the tool's order is kept.
+        let err = est_rel * gt_rel.inverse();
         trans.push(err.translation.vector.norm());
         // Same angle as TUM's arccos((trace(R) − 1)/2), but from the quaternion with atan2,
         // which stays accurate near zero where arccos loses half the digits.

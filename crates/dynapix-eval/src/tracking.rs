@@ -92,12 +92,12 @@ pub fn tracking_rate(
             missing_interval[k] = true;
         }
     }
-    let missing: f64 = refs
+    // fold from +0.0: `Sum` for f64 starts at −0.0, which would print as "-0.000".
+    let missing = refs
         .windows(2)
         .zip(&missing_interval)
         .filter(|(_, m)| **m)
-        .map(|(w, _)| w[1] - w[0])
-        .sum();
+        .fold(0.0, |acc, (w, _)| acc + (w[1] - w[0]));
     let duration = refs[m - 1] - refs[0];
     if duration <= 0.0 {
         return Err(EvalError::InvalidParameter {
@@ -125,6 +125,7 @@ mod tests {
         // All tracked.
         let t = tracking_rate(&r, &r, &p).expect("tr");
         assert_eq!((t.missing_time_s, t.tracking_rate), (0.0, 1.0));
+        assert!(t.missing_time_s.is_sign_positive());
         // First frame missing: only the first interval [0,1].
         let t = tracking_rate(&r, &r[1..], &p).expect("tr");
         assert_eq!(t.missing_time_s, 1.0);

@@ -137,3 +137,44 @@ fn removing_frames_gives_the_exact_missing_time() {
     assert!((r.duration_s - (inside[n - 1] - inside[0])).abs() < 1e-9);
     assert!((r.tracking_rate - (1.0 - expected / r.duration_s)).abs() < 1e-12);
 }
+
+#[test]
+fn rpe_matches_tum_evaluate_rpe_on_walking_sequences() {
+    // Expected values from a line-by-line numpy transcription of TUM `evaluate_rpe.py`
+    // (`--fixed_delta --delta 1 --delta_unit s`, all pairs, i.e. no random subsampling),
+    // run on the same files.
+    let Some(d) = data_dir() else { return };
+    let cases = [
+        ("walking_xyz", "walk_xyz", 728, 0.021809182, 0.618396895),
+        ("walking_rpy", "walk_rpy", 755, 0.054403758, 1.016519336),
+        (
+            "walking_halfsphere",
+            "walk_halfsphere",
+            988,
+            0.027256909,
+            0.770369571,
+        ),
+    ];
+    for (seq, short, pairs, trans, rot) in cases {
+        let gt = read_trajectory(&d.join(format!(
+            "tum-walking-meta/rgbd_dataset_freiburg3_{seq}/groundtruth.txt"
+        )))
+        .expect("gt");
+        let est = read_trajectory(&d.join(format!(
+            "reference-trajectories/dynaslam_rerun_yubaoliu/fr3_{short}_CameraTrajectory.txt"
+        )))
+        .expect("est");
+        let r = dynapix_eval::rpe(&gt, &est, &dynapix_eval::RpeParams::default()).expect("rpe");
+        assert_eq!(r.pairs, pairs, "{seq}");
+        assert!(
+            (r.translation.rmse - trans).abs() < 1e-9,
+            "{seq}: {}",
+            r.translation.rmse
+        );
+        assert!(
+            (r.rotation_deg.rmse - rot).abs() < 1e-8,
+            "{seq}: {}",
+            r.rotation_deg.rmse
+        );
+    }
+}

@@ -1,0 +1,225 @@
+//! `dynapix eval` end to end: the JSON contract used by automated checks, the human-readable
+//! output, multi-run tables, plots and clean errors on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_dynapix"))
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+}
+
+fn small_gt() -> PathBuf {
+    repo().join("tests/data/fr1_xyz/groundtruth.txt")
+}
+
+fn small_est() -> PathBuf {
+    repo().join("tests/data/fr1_xyz/rgbdslam_first300.txt")
+}
+
+fn json_of(out: &std::process::Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "stderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        text.trim().lines().count(),
+        1,
+        "one JSON object on one line: {text}"
+    );
+    serde_json::from_str(text.trim()).expect("valid JSON")
+}
+
+/// Writes the stamps of a trajectory file, minus some, as a reference list, and returns the
+/// expected missing time (every stamp is a reference frame; the estimate lacks frames 10..15).
+fn write_reference_with_extra_frames(est: &Path, dir: &Path) -> (PathBuf, f64) {
+    let text = std::fs::read_to_string(est).expect("est");
+    let stamps: Vec<f64> = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            l.split_whitespace()
+                .next()
+                .expect("field")
+                .parse()
+                .expect("num")
+        })
+        .collect();
+    let reference = dir.join("rgb.txt");
+    let body: String = stamps
+        .iter()
+        .map(|t| format!("{t:.6} rgb/{t:.6}.png\n"))
+        .collect();
+    std::fs::write(&reference, format!("# timestamp filename\n{body}")).expect("write");
+    let kept: String = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .enumerate()
+        .filter(|(k, _)| !(10..15).contains(k))
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
+    std::fs::write(dir.join("est.txt"), kept).expect("write");
+    (reference, stamps[15] - stamps[9])
+}
+
+#[test]
+fn json_contract_without_and_with_reference() {
+    let out = bin()
+        .args(["eval", "--json", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(small_est())
+        .output()
+        .expect("runs");
+    let v = json_of(&out);
+    let rmse = v["ate_rmse_m"].as_f64().expect("ate_rmse_m");
+    assert!(rmse > 0.001 && rmse < 0.1, "{rmse}");
+    assert_eq!(v["pairs"].as_u64(), Some(298));
+    assert!(v.get("tracking_rate").is_none());
+
+    let dir = tempfile::tempdir().expect("tmp");
+    let (reference, missing) = write_reference_with_extra_frames(&small_est(), dir.path());
+    let out = bin()
+        .args(["eval", "--json", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(dir.path().join("est.txt"))
+        .arg("--reference")
+        .arg(&reference)
+        .output()
+        .expect("runs");
+    let v = json_of(&out);
+    assert!(v["ate_rmse_m"].as_f64().is_some());
+    assert_eq!(v["pairs"].as_u64(), Some(293));
+    let got = v["missing_time_s"].as_f64().expect("missing_time_s");
+    assert!((got - missing).abs() < 1e-9, "{got} vs {missing}");
+    let tr = v["tracking_rate"].as_f64().expect("tracking_rate");
+    assert!(tr > 0.9 && tr < 1.0, "{tr}");
+}
+
+#[test]
+fn human_output_rpe_and_plots() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let plots = dir.path().join("plots");
+    let out = bin()
+        .args(["eval", "--rpe-frames", "5", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(small_est())
+        .arg("--plot")
+        .arg(&plots)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("rmse    0.0"), "{text}");
+    assert!(text.contains("RPE ("), "{text}");
+    for f in ["trajectory_xy", "ate_over_time"] {
+        let svg = std::fs::read_to_string(plots.join(format!("{f}.svg"))).expect("svg");
+        assert!(
+            svg.starts_with("<svg") && svg.contains("<polyline"),
+            "{f}.svg"
+        );
+        let png = std::fs::read(plots.join(format!("{f}.png"))).expect("png");
+        assert_eq!(&png[1..4], b"PNG");
+    }
+}
+
+#[test]
+fn runs_folder_gives_per_method_table() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let runs = dir.path().join("runs");
+    let est = std::fs::read_to_string(small_est()).expect("est");
+    for (method, n) in [("A", 2), ("B", 1)] {
+        std::fs::create_dir_all(runs.join(method)).expect("mkdir");
+        for k in 0..n {
+            std::fs::write(runs.join(method).join(format!("run{k}.txt")), &est).expect("write");
+        }
+    }
+    let out_dir = dir.path().join("table");
+    let seq = format!("fr1={}:{}", small_gt().display(), runs.display());
+    let out = bin()
+        .args(["eval", "--sequence", &seq, "--out"])
+        .arg(&out_dir)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(out_dir.join("table.md")).expect("md");
+    assert!(md.contains("A ATE [m]") && md.contains("B ATE [m]"), "{md}");
+    // Identical runs: std 0.
+    assert!(
+        md.contains("| fr1 | 0.015 ± 0.000 | 0.015 ± 0.000 |"),
+        "{md}"
+    );
+    let csv = std::fs::read_to_string(out_dir.join("table.csv")).expect("csv");
+    assert!(csv.contains("fr1,A,0.014980,0.000000,,,2,0"), "{csv}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("table.json")).expect("json"))
+            .expect("json");
+    assert_eq!(json["methods"][1], "B");
+
+    let out = bin()
+        .args(["eval", "--json", "--gt"])
+        .arg(small_gt())
+        .arg("--runs")
+        .arg(&runs)
+        .output()
+        .expect("runs");
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(
+        v["sequences"][0]["methods"][0]["runs"]
+            .as_array()
+            .map(Vec::len),
+        Some(2)
+    );
+}
+
+#[test]
+fn bad_input_fails_with_file_and_line() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let bad = dir.path().join("bad.txt");
+    std::fs::write(&bad, "1.0 0 0 0 0 0 0 1\n2.0 0 0 zero 0 0 0 1\n").expect("write");
+    let out = bin()
+        .args(["eval", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(&bad)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.txt") && err.contains(":2"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    // No overlap in time: a clear message, no panic.
+    let shifted = dir.path().join("shifted.txt");
+    std::fs::write(
+        &shifted,
+        "5.0 0 0 0 0 0 0 1\n6.0 1 0 0 0 0 0 1\n7.0 0 1 0 0 0 0 1\n",
+    )
+    .expect("write");
+    let out = bin()
+        .args(["eval", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(&shifted)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("timestamp pairs"), "{err}");
+}
