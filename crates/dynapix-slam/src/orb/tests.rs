@@ -241,3 +241,23 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn grade_setting_3000_features() {
+    let Some(img) = fr1_xyz_frame(0) else { return };
+    let e = OrbExtractor::new(OrbParams {
+        nfeatures: 3000,
+        ..OrbParams::default()
+    })
+    .unwrap_or_else(|err| panic!("{err}"));
+    let (k, d) = e.extract(&img);
+    let levels: Vec<usize> = (0..8)
+        .map(|l| k.iter().filter(|kp| kp.octave as usize == l).count())
+        .collect();
+    eprintln!(
+        "3000-feature setting: {} keypoints, per level {levels:?}",
+        k.len()
+    );
+    assert_eq!(k.len(), d.len());
+    assert!(k.len() > 2400 && k.len() <= 3030, "{}", k.len());
+}
