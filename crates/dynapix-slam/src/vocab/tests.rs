@@ -233,6 +233,12 @@ fn save_and_load_files() {
         Vocabulary::load(&dir.path().join("missing")),
         Err(VocabError::Io { .. })
     ));
+    let gz = dir.path().join("ORBvoc.txt.tar.gz");
+    std::fs::write(&gz, [0x1f, 0x8b, 8, 0, 0, 0]).unwrap_or_else(|e| panic!("{e}"));
+    match Vocabulary::load(&gz) {
+        Err(VocabError::Unsupported(m)) => assert!(m.contains("extract"), "{m}"),
+        other => panic!("expected a gzip hint, got {other:?}"),
+    }
 }
 
 #[test]
