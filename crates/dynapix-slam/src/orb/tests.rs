@@ -123,12 +123,20 @@ fn no_features_on_degenerate_images() {
 
 #[test]
 fn extraction_is_deterministic() {
-    let img = synthetic(320, 240, 7);
+    let img = fr1_xyz_frame(3).unwrap_or_else(|| synthetic(320, 240, 7));
     let e = OrbExtractor::default();
     let a = e.extract(&img);
     let b = e.extract(&img);
     assert!(!a.0.is_empty());
     assert_eq!(a, b);
+    // Same result on a single-thread and a three-thread pool.
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap_or_else(|err| panic!("{err}"));
+        assert_eq!(pool.install(|| e.extract(&img)), a, "{threads} threads");
+    }
 }
 
 #[test]
