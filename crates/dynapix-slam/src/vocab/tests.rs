@@ -132,6 +132,17 @@ fn training_is_deterministic_and_round_trips() {
     let a = Vocabulary::train(&imgs, &p).unwrap_or_else(|e| panic!("{e}"));
     let b = Vocabulary::train(&imgs, &p).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(a, b);
+    // 6000 descriptors take the parallel path; the thread count must not matter.
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let c = pool
+            .install(|| Vocabulary::train(&imgs, &p))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(a, c, "{threads} threads");
+    }
     assert!(
         a.word_count() > 25 && a.word_count() <= 125,
         "{}",
