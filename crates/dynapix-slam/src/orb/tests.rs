@@ -123,12 +123,20 @@ fn no_features_on_degenerate_images() {
 
 #[test]
 fn extraction_is_deterministic() {
-    let img = synthetic(320, 240, 7);
+    let img = fr1_xyz_frame(3).unwrap_or_else(|| synthetic(320, 240, 7));
     let e = OrbExtractor::default();
     let a = e.extract(&img);
     let b = e.extract(&img);
     assert!(!a.0.is_empty());
     assert_eq!(a, b);
+    // Same result on a single-thread and a three-thread pool.
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap_or_else(|err| panic!("{err}"));
+        assert_eq!(pool.install(|| e.extract(&img)), a, "{threads} threads");
+    }
 }
 
 #[test]
@@ -240,4 +248,24 @@ proptest::proptest! {
             proptest::prop_assert!(kp.x >= 0.0 && kp.x < w as f32 && kp.y >= 0.0 && kp.y < h as f32);
         }
     }
+}
+
+#[test]
+fn grade_setting_3000_features() {
+    let Some(img) = fr1_xyz_frame(0) else { return };
+    let e = OrbExtractor::new(OrbParams {
+        nfeatures: 3000,
+        ..OrbParams::default()
+    })
+    .unwrap_or_else(|err| panic!("{err}"));
+    let (k, d) = e.extract(&img);
+    let levels: Vec<usize> = (0..8)
+        .map(|l| k.iter().filter(|kp| kp.octave as usize == l).count())
+        .collect();
+    eprintln!(
+        "3000-feature setting: {} keypoints, per level {levels:?}",
+        k.len()
+    );
+    assert_eq!(k.len(), d.len());
+    assert!(k.len() > 2400 && k.len() <= 3030, "{}", k.len());
 }

@@ -242,6 +242,12 @@ impl Vocabulary {
         let bytes = std::fs::read(path).map_err(io_err)?;
         if bytes.starts_with(MAGIC) {
             Self::from_bytes(&bytes)
+        } else if bytes.starts_with(&[0x1f, 0x8b]) {
+            // ORB-SLAM2 ships `ORBvoc.txt.tar.gz`; decompression is left to the user.
+            Err(VocabError::Unsupported(format!(
+                "{} is gzip-compressed; extract it first (tar -xzf ORBvoc.txt.tar.gz)",
+                path.display()
+            )))
         } else {
             Self::from_orbvoc_text(std::io::Cursor::new(bytes))
         }

@@ -132,6 +132,17 @@ fn training_is_deterministic_and_round_trips() {
     let a = Vocabulary::train(&imgs, &p).unwrap_or_else(|e| panic!("{e}"));
     let b = Vocabulary::train(&imgs, &p).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(a, b);
+    // 6000 descriptors take the parallel path; the thread count must not matter.
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let c = pool
+            .install(|| Vocabulary::train(&imgs, &p))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(a, c, "{threads} threads");
+    }
     assert!(
         a.word_count() > 25 && a.word_count() <= 125,
         "{}",
@@ -233,6 +244,12 @@ fn save_and_load_files() {
         Vocabulary::load(&dir.path().join("missing")),
         Err(VocabError::Io { .. })
     ));
+    let gz = dir.path().join("ORBvoc.txt.tar.gz");
+    std::fs::write(&gz, [0x1f, 0x8b, 8, 0, 0, 0]).unwrap_or_else(|e| panic!("{e}"));
+    match Vocabulary::load(&gz) {
+        Err(VocabError::Unsupported(m)) => assert!(m.contains("extract"), "{m}"),
+        other => panic!("expected a gzip hint, got {other:?}"),
+    }
 }
 
 #[test]
