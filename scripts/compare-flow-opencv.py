@@ -64,9 +64,14 @@ def main():
     ap.add_argument("--presets", default="ultrafast,fast,medium")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
     ap.add_argument("--threads", type=int, default=0, help="threads for both (0: their defaults)")
+    ap.add_argument("--timing-only", action="store_true",
+                    help="only time every preset on the first two real frames (640x480), both methods")
     args = ap.parse_args()
 
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if args.timing_only:
+        time_real_pair(root, args)
+        return
     out = args.out or tempfile.mkdtemp(prefix="dynapix-flow-")
     presets = args.presets.split(",")
     cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "flow_eval",
@@ -122,6 +127,34 @@ def main():
         for case, p, s, t, c, ct in rows:
             print(f"{case:18} {p:9} | {s[0]:6.3f} {s[1]:6.2f} {s[2]:6.2f} {t[0]:6.1f} {t[1]:6.1f} {t[2]:6.1f} "
                   f"| {c[0]:6.3f} {c[1]:6.2f} {c[2]:6.2f} {ct[0]:6.1f} {ct[1]:6.1f} {ct[2]:6.1f}")
+
+
+def time_real_pair(root, args):
+    """Best / median / mean wall time and CPU time per run on two consecutive real frames."""
+    env = dict(os.environ)
+    if args.threads > 0:
+        env["RAYON_NUM_THREADS"] = str(args.threads)
+        cv2.setNumThreads(args.threads)
+    rgb = os.path.join(root, "..", "shared", "data", "tum", "rgbd_dataset_freiburg1_xyz", "rgb")
+    frames = sorted(f for f in os.listdir(rgb) if f.endswith(".png"))[:2]
+    paths = [os.path.join(rgb, f) for f in frames]
+    cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "dis_time", "--",
+           *paths, "--repeat", str(args.repeat)]
+    subprocess.run(cmd, cwd=root, check=True, env=env)
+    a, b = (cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in paths)
+    for name in ["medium", "fast", "ultrafast"]:
+        dis = cv2.DISOpticalFlow_create(PRESETS[name])
+        dis.calc(a, b, None)
+        ts = []
+        c0 = time.process_time()
+        for _ in range(max(1, args.repeat)):
+            t = time.perf_counter()
+            dis.calc(a, b, None)
+            ts.append(1e3 * (time.perf_counter() - t))
+        cpu = 1e3 * (time.process_time() - c0) / len(ts)
+        ts.sort()
+        print(f"opencv {name}: best {ts[0]:.1f} median {ts[len(ts) // 2]:.1f} mean {sum(ts) / len(ts):.1f} "
+              f"cpu/run {cpu:.1f} ms ({len(ts)} runs, {cv2.getNumThreads()} threads)")
 
 
 if __name__ == "__main__":
