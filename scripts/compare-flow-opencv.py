@@ -64,9 +64,20 @@ def main():
     ap.add_argument("--presets", default="ultrafast,fast,medium")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
     ap.add_argument("--threads", type=int, default=0, help="threads for both (0: their defaults)")
+    ap.add_argument("--synth", metavar="SEQ_DIR",
+                    help="instead: evaluate consecutive frames of a `dynapix synth --flow 1` sequence "
+                         "(rgb/<ts>.png, flow/<ts>.flo) through the `dynapix flow` CLI")
+    ap.add_argument("--timing-only", action="store_true",
+                    help="only time every preset on the first two real frames (640x480), both methods")
     args = ap.parse_args()
 
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if args.timing_only:
+        time_real_pair(root, args)
+        return
+    if args.synth:
+        eval_synth(root, args)
+        return
     out = args.out or tempfile.mkdtemp(prefix="dynapix-flow-")
     presets = args.presets.split(",")
     cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "flow_eval",
@@ -122,6 +133,67 @@ def main():
         for case, p, s, t, c, ct in rows:
             print(f"{case:18} {p:9} | {s[0]:6.3f} {s[1]:6.2f} {s[2]:6.2f} {t[0]:6.1f} {t[1]:6.1f} {t[2]:6.1f} "
                   f"| {c[0]:6.3f} {c[1]:6.2f} {c[2]:6.2f} {ct[0]:6.1f} {ct[1]:6.1f} {ct[2]:6.1f}")
+
+
+def eval_synth(root, args):
+    """EPE on a synthetic sequence with ground-truth flow, ours through the CLI contract."""
+    subprocess.run(["cargo", "build", "--quiet", "--release", "-p", "dynapix-cli"], cwd=root, check=True)
+    exe = os.path.join(root, "target", "release", "dynapix")
+    seq = args.synth
+    frames = sorted(f for f in os.listdir(os.path.join(seq, "rgb")) if f.endswith(".png"))
+    presets = args.presets.split(",")
+    acc = {}
+    tmp = tempfile.mkdtemp(prefix="dynapix-flow-synth-")
+    for i, fa in enumerate(frames[:-1]):
+        gt_path = os.path.join(seq, "flow", fa[:-4] + ".flo")
+        if not os.path.exists(gt_path):
+            continue
+        pa, pb = os.path.join(seq, "rgb", fa), os.path.join(seq, "rgb", frames[i + 1])
+        gt = read_flo(gt_path)
+        mask = visible_mask(gt) & np.isfinite(gt).all(axis=2)
+        a, b = (cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in (pa, pb))
+        for p in presets:
+            out = os.path.join(tmp, f"{p}.flo")
+            subprocess.run([exe, "flow", pa, pb, "--out", out, "--preset", p], check=True)
+            for name, flow in (("dynapix", read_flo(out)),
+                               ("OpenCV", cv2.DISOpticalFlow_create(PRESETS[p]).calc(a, b, None))):
+                e = np.linalg.norm(flow - gt, axis=2)[mask]
+                acc.setdefault((p, name), []).append((e.sum(), (e > 1).sum(), (e > 3).sum(), e.size))
+    print(f"{'preset':9} {'method':8} {'EPE':>6} {'>1px%':>6} {'>3px%':>6} pairs")
+    for p in presets:
+        for name in ("dynapix", "OpenCV"):
+            r = np.array(acc.get((p, name), [(0, 0, 0, 1)]), dtype=np.float64)
+            n = r[:, 3].sum()
+            print(f"{p:9} {name:8} {r[:, 0].sum() / n:6.3f} {100 * r[:, 1].sum() / n:6.2f} "
+                  f"{100 * r[:, 2].sum() / n:6.2f} {len(r)}")
+
+
+def time_real_pair(root, args):
+    """Best / median / mean wall time and CPU time per run on two consecutive real frames."""
+    env = dict(os.environ)
+    if args.threads > 0:
+        env["RAYON_NUM_THREADS"] = str(args.threads)
+        cv2.setNumThreads(args.threads)
+    rgb = os.path.join(root, "..", "shared", "data", "tum", "rgbd_dataset_freiburg1_xyz", "rgb")
+    frames = sorted(f for f in os.listdir(rgb) if f.endswith(".png"))[:2]
+    paths = [os.path.join(rgb, f) for f in frames]
+    cmd = ["cargo", "run", "--quiet", "--release", "-p", "dynapix-flow", "--example", "dis_time", "--",
+           *paths, "--repeat", str(args.repeat)]
+    subprocess.run(cmd, cwd=root, check=True, env=env)
+    a, b = (cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in paths)
+    for name in ["medium", "fast", "ultrafast"]:
+        dis = cv2.DISOpticalFlow_create(PRESETS[name])
+        dis.calc(a, b, None)
+        ts = []
+        c0 = time.process_time()
+        for _ in range(max(1, args.repeat)):
+            t = time.perf_counter()
+            dis.calc(a, b, None)
+            ts.append(1e3 * (time.perf_counter() - t))
+        cpu = 1e3 * (time.process_time() - c0) / len(ts)
+        ts.sort()
+        print(f"opencv {name}: best {ts[0]:.1f} median {ts[len(ts) // 2]:.1f} mean {sum(ts) / len(ts):.1f} "
+              f"cpu/run {cpu:.1f} ms ({len(ts)} runs, {cv2.getNumThreads()} threads)")
 
 
 if __name__ == "__main__":

@@ -20,10 +20,10 @@ fn load_pair() -> (image::GrayImage, image::GrayImage) {
         v.sort();
         v
     });
-    if let Some(f) = frames.filter(|f| f.len() >= 2) {
-        if let (Ok(a), Ok(b)) = (image::open(&f[0]), image::open(&f[1])) {
-            return (a.to_luma8(), b.to_luma8());
-        }
+    if let Some(f) = frames.filter(|f| f.len() >= 2)
+        && let (Ok(a), Ok(b)) = (image::open(&f[0]), image::open(&f[1]))
+    {
+        return (a.to_luma8(), b.to_luma8());
     }
     eprintln!("TUM frames not found at {dir}: benchmarking a synthetic pair");
     let b = pairs::texture(640, 480);

@@ -909,8 +909,10 @@ mod tests {
             DisFlow::default().flow(&a, &b),
             Err(FlowError::SizeMismatch { .. })
         ));
-        let mut p = DisParams::default();
-        p.patch_stride = 0;
+        let p = DisParams {
+            patch_stride: 0,
+            ..DisParams::default()
+        };
         assert!(DisFlow::new(p).flow(&a, &a).is_err());
     }
 

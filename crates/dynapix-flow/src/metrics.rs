@@ -29,14 +29,12 @@ pub fn flow_error(
             b: (gt.width, gt.height),
         });
     }
-    if let Some(m) = valid {
-        if m.len() != gt.data.len() {
-            return Err(FlowError::Other(format!(
-                "mask has {} entries, flow has {}",
-                m.len(),
-                gt.data.len()
-            )));
-        }
+    if let Some(m) = valid.filter(|m| m.len() != gt.data.len()) {
+        return Err(FlowError::Other(format!(
+            "mask has {} entries, flow has {}",
+            m.len(),
+            gt.data.len()
+        )));
     }
     let (mut sum, mut n1, mut n3, mut count) = (0.0f64, 0usize, 0usize, 0usize);
     for (i, (e, g)) in est.data.iter().zip(&gt.data).enumerate() {
