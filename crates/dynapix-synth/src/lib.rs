@@ -7,6 +7,16 @@
 //! ([`movers`]) for a named [`sequence::Preset`]; [`render::render`] ray-casts both versions;
 //! [`sensor`] adds Kinect-like depth and image effects; [`output`] writes the DynaPix folder
 //! layout (rgb, depth, background, depth_bg, mask, instance, flow, TUM lists, camera.yaml).
+//!
+//! Sensor defaults ([`SensorParams::default`]): Kinect-like depth on (disparity noise giving
+//! σz ≈ 1.6 mm·z², 1/8 px disparity quantisation, holes at depth discontinuities, outside
+//! 0.4–5 m) and mild image noise (σ = 1.5 grey levels) on, because the SLAM and flow code must
+//! cope with them; exposure changes and motion blur off (opt in with [`SensorParams::full`]);
+//! [`SensorParams::clean`] gives exact data for tests. Noise is the same in both versions of a
+//! frame, so `rgb == background` on mask-0 pixels holds byte for byte with every setting;
+//! `depth` and `depth_bg` can differ next to movers (holes at the mover's depth edges).
+//!
+//! Augmentation of real sequences: [`augment`] and [`output::augment_sequence`].
 
 pub mod augment;
 pub mod movers;
