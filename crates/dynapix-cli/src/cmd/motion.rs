@@ -92,6 +92,10 @@ pub struct Args {
     /// Background reconstruction: largest frame offset.
     #[arg(long, default_value_t = 15)]
     pub bg_radius: usize,
+    /// Refine the rotation of every relative pose by this many image-alignment iterations
+    /// before splatting (for noisy poses, e.g. from a SLAM run); 0 trusts the poses.
+    #[arg(long, default_value_t = 0)]
+    pub refine_rotation: usize,
     /// Background reconstruction: offset step.
     #[arg(long, default_value_t = 3)]
     pub bg_step: usize,
@@ -139,8 +143,11 @@ struct FrameInfo {
     mask: PathBuf,
 }
 
+/// Camera, depth factor, and image size when the file states it.
+type CameraSettings = (PinholeCamera, f64, Option<(u32, u32)>);
+
 /// Camera intrinsics and depth scale read from an ORB-SLAM2 settings file.
-fn read_camera_yaml(path: &Path) -> anyhow::Result<(PinholeCamera, f64, Option<(u32, u32)>)> {
+fn read_camera_yaml(path: &Path) -> anyhow::Result<CameraSettings> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let mut kv = HashMap::new();
@@ -340,9 +347,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         b => b,
     };
+    params.moving.refine_iterations = args.refine_rotation;
     let recon = ReconstructParams {
         radius: args.bg_radius,
         step: args.bg_step,
+        refine_iterations: args.refine_rotation,
         ..Default::default()
     };
     let preset: dynapix_flow::dis::Preset = args
@@ -607,9 +616,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                                 t_ts: t_wc_inv * poses[*j],
                             })
                             .collect();
-                        let b =
-                            reconstruct_background(&cur.rgb, &cur.depth, &sources, &cam, &recon)
-                                .with_context(|| format!("frame {i} ({}): background", f.name))?;
+                        let b = reconstruct_background(
+                            &cur.rgb,
+                            &cur.depth,
+                            &sources,
+                            &cam,
+                            &recon,
+                            Some(&flow),
+                        )
+                        .with_context(|| format!("frame {i} ({}): background", f.name))?;
                         if args.save_background {
                             dynapix_io::images::write_rgb(
                                 bgrec_dir.join(&f.name).with_extension("png"),
@@ -740,10 +755,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             (None, None)
         };
+        let best = roc.best_iou();
         println!(
-            "eval: ROC-AUC {} IoU(P>0.5) {} over {} moving / {} other pixels",
+            "eval: ROC-AUC {} IoU(P>0.5) {} best IoU {} over {} moving / {} other pixels",
             auc.map_or("n/a".into(), |v| format!("{v:.4}")),
             iou.map_or("n/a".into(), |v| format!("{v:.4}")),
+            best.map_or("n/a".into(), |(t, v)| format!("{v:.4} (P>{t:.3})")),
             roc.positives(),
             roc.negatives()
         );
@@ -754,6 +771,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         results["eval"] = json!({
             "roc_auc": auc, "iou_p_gt_0_5": iou,
+            "best_iou": best.map(|b| b.1), "best_iou_threshold": best.map(|b| b.0),
             "moving_pixels": roc.positives(), "other_pixels": roc.negatives(),
             "background_psnr_in_movers_db": bg_psnr, "frame_psnr_in_movers_db": raw_psnr,
         });
