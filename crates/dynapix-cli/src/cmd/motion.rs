@@ -552,8 +552,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut frame_cache: HashMap<usize, Arc<Loaded>> = HashMap::new();
     let mut bg_cache: HashMap<usize, Arc<Bg>> = HashMap::new();
     let mut roc = RocAccumulator::new(0.5);
-    // Squared error and sample count inside the movers: reconstructed and raw frame vs truth.
-    let mut psnr_acc = [0.0f64, 0.0, 0.0];
+    // Squared error sums and pixel counts of the reconstructed background and of the frame
+    // itself against the true background: inside all movers (mask > 0), then inside the
+    // moving ones (mask 255).
+    let mut psnr_acc = [0.0f64; 6];
     let mut compute_secs = 0.0f64;
     let chunk_len = 2 * rayon::current_num_threads().max(1) * 4;
     for chunk in todo.chunks(chunk_len) {
@@ -654,7 +656,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let t0 = Instant::now();
         let results = chunk
             .par_iter()
-            .map(|&i| -> anyhow::Result<(RocAccumulator, [f64; 3])> {
+            .map(|&i| -> anyhow::Result<(RocAccumulator, [f64; 6])> {
                 let f = &frames[i];
                 let view = |k: usize| FrameImages {
                     rgb: &frame_cache[&k].rgb,
@@ -687,22 +689,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     )?;
                 }
                 let mut acc = RocAccumulator::new(0.5);
-                let mut ps = [0.0f64; 3];
+                let mut ps = [0.0f64; 6];
                 if args.eval_masks {
                     let mask = dynapix_io::images::read_mask(&f.mask)?;
                     let pos: Vec<bool> = mask.iter().map(|&m| m == 255).collect();
                     acc.add(maps.p.as_raw(), &pos);
                     if bg_source == BackgroundSource::Reconstruct && f.background.exists() {
                         let truth = dynapix_io::images::read_rgb(&f.background)?;
-                        let movers: Vec<bool> = mask.iter().map(|&m| m > 0).collect();
-                        let k = movers.iter().filter(|&&m| m).count() as f64;
-                        if k > 0.0 {
+                        for (slot, sel) in [(0usize, 1u8), (3, 255)] {
+                            let movers: Vec<bool> = mask.iter().map(|&m| m >= sel).collect();
+                            let k = movers.iter().filter(|&&m| m).count() as f64;
                             let mse = |a: &RgbImage| {
                                 psnr_masked(a, &truth, &movers)
                                     .map(|p| 255.0f64.powi(2) / 10f64.powf(p / 10.0))
                                     .unwrap_or(0.0)
                             };
-                            ps = [mse(&bg_cache[&i].rgb) * k, mse(&frame_cache[&i].rgb) * k, k];
+                            if k > 0.0 {
+                                ps[slot] = mse(&bg_cache[&i].rgb) * k;
+                                ps[slot + 1] = mse(&frame_cache[&i].rgb) * k;
+                                ps[slot + 2] = k;
+                            }
                         }
                     }
                 }
@@ -713,8 +719,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         compute_secs += t0.elapsed().as_secs_f64();
         for (acc, ps) in results {
             roc.merge(&acc);
-            for k in 0..3 {
-                psnr_acc[k] += ps[k];
+            for (a, p) in psnr_acc.iter_mut().zip(ps) {
+                *a += p;
             }
         }
     }
@@ -749,12 +755,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.eval_masks {
         let auc = roc.auc();
         let iou = roc.iou();
-        let psnr = |se: f64| 10.0 * (255.0f64.powi(2) / (se / psnr_acc[2])).log10();
-        let (bg_psnr, raw_psnr) = if psnr_acc[2] > 0.0 {
-            (Some(psnr(psnr_acc[0])), Some(psnr(psnr_acc[1])))
-        } else {
-            (None, None)
-        };
+        let psnr =
+            |se: f64, n: f64| (n > 0.0).then(|| 10.0 * (255.0f64.powi(2) / (se / n)).log10());
+        let bg_psnr = psnr(psnr_acc[0], psnr_acc[2]);
+        let raw_psnr = psnr(psnr_acc[1], psnr_acc[2]);
+        let bg_psnr_moving = psnr(psnr_acc[3], psnr_acc[5]);
+        let raw_psnr_moving = psnr(psnr_acc[4], psnr_acc[5]);
         let best = roc.best_iou();
         println!(
             "eval: ROC-AUC {} IoU(P>0.5) {} best IoU {} over {} moving / {} other pixels",
@@ -766,7 +772,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         if let (Some(b), Some(r)) = (bg_psnr, raw_psnr) {
             println!(
-                "eval: reconstructed background PSNR inside movers {b:.2} dB (frame itself: {r:.2} dB)"
+                "eval: reconstructed background PSNR inside all movers {b:.2} dB (frame itself: {r:.2} dB)"
+            );
+        }
+        if let (Some(b), Some(r)) = (bg_psnr_moving, raw_psnr_moving) {
+            println!(
+                "eval: reconstructed background PSNR inside moving movers {b:.2} dB (frame itself: {r:.2} dB)"
             );
         }
         results["eval"] = json!({
@@ -774,6 +785,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "best_iou": best.map(|b| b.1), "best_iou_threshold": best.map(|b| b.0),
             "moving_pixels": roc.positives(), "other_pixels": roc.negatives(),
             "background_psnr_in_movers_db": bg_psnr, "frame_psnr_in_movers_db": raw_psnr,
+            "background_psnr_in_moving_db": bg_psnr_moving,
+            "frame_psnr_in_moving_db": raw_psnr_moving,
         });
     }
     write_json("complete", results)?;
