@@ -92,6 +92,10 @@ pub struct Args {
     /// Background reconstruction: largest frame offset.
     #[arg(long, default_value_t = 15)]
     pub bg_radius: usize,
+    /// Refine the rotation of every relative pose by this many image-alignment iterations
+    /// before splatting (for noisy poses, e.g. from a SLAM run); 0 trusts the poses.
+    #[arg(long, default_value_t = 0)]
+    pub refine_rotation: usize,
     /// Background reconstruction: offset step.
     #[arg(long, default_value_t = 3)]
     pub bg_step: usize,
@@ -139,8 +143,11 @@ struct FrameInfo {
     mask: PathBuf,
 }
 
+/// Camera, depth factor, and image size when the file states it.
+type CameraSettings = (PinholeCamera, f64, Option<(u32, u32)>);
+
 /// Camera intrinsics and depth scale read from an ORB-SLAM2 settings file.
-fn read_camera_yaml(path: &Path) -> anyhow::Result<(PinholeCamera, f64, Option<(u32, u32)>)> {
+fn read_camera_yaml(path: &Path) -> anyhow::Result<CameraSettings> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let mut kv = HashMap::new();
@@ -340,9 +347,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         b => b,
     };
+    params.moving.refine_iterations = args.refine_rotation;
     let recon = ReconstructParams {
         radius: args.bg_radius,
         step: args.bg_step,
+        refine_iterations: args.refine_rotation,
         ..Default::default()
     };
     let preset: dynapix_flow::dis::Preset = args
@@ -543,8 +552,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut frame_cache: HashMap<usize, Arc<Loaded>> = HashMap::new();
     let mut bg_cache: HashMap<usize, Arc<Bg>> = HashMap::new();
     let mut roc = RocAccumulator::new(0.5);
-    // Squared error and sample count inside the movers: reconstructed and raw frame vs truth.
-    let mut psnr_acc = [0.0f64, 0.0, 0.0];
+    // Squared error sums and pixel counts of the reconstructed background and of the frame
+    // itself against the true background: inside all movers (mask > 0), then inside the
+    // moving ones (mask 255).
+    let mut psnr_acc = [0.0f64; 6];
     let mut compute_secs = 0.0f64;
     let chunk_len = 2 * rayon::current_num_threads().max(1) * 4;
     for chunk in todo.chunks(chunk_len) {
@@ -607,9 +618,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                                 t_ts: t_wc_inv * poses[*j],
                             })
                             .collect();
-                        let b =
-                            reconstruct_background(&cur.rgb, &cur.depth, &sources, &cam, &recon)
-                                .with_context(|| format!("frame {i} ({}): background", f.name))?;
+                        let b = reconstruct_background(
+                            &cur.rgb,
+                            &cur.depth,
+                            &sources,
+                            &cam,
+                            &recon,
+                            Some(&flow),
+                        )
+                        .with_context(|| format!("frame {i} ({}): background", f.name))?;
                         if args.save_background {
                             dynapix_io::images::write_rgb(
                                 bgrec_dir.join(&f.name).with_extension("png"),
@@ -639,7 +656,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let t0 = Instant::now();
         let results = chunk
             .par_iter()
-            .map(|&i| -> anyhow::Result<(RocAccumulator, [f64; 3])> {
+            .map(|&i| -> anyhow::Result<(RocAccumulator, [f64; 6])> {
                 let f = &frames[i];
                 let view = |k: usize| FrameImages {
                     rgb: &frame_cache[&k].rgb,
@@ -672,22 +689,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     )?;
                 }
                 let mut acc = RocAccumulator::new(0.5);
-                let mut ps = [0.0f64; 3];
+                let mut ps = [0.0f64; 6];
                 if args.eval_masks {
                     let mask = dynapix_io::images::read_mask(&f.mask)?;
                     let pos: Vec<bool> = mask.iter().map(|&m| m == 255).collect();
                     acc.add(maps.p.as_raw(), &pos);
                     if bg_source == BackgroundSource::Reconstruct && f.background.exists() {
                         let truth = dynapix_io::images::read_rgb(&f.background)?;
-                        let movers: Vec<bool> = mask.iter().map(|&m| m > 0).collect();
-                        let k = movers.iter().filter(|&&m| m).count() as f64;
-                        if k > 0.0 {
+                        for (slot, sel) in [(0usize, 1u8), (3, 255)] {
+                            let movers: Vec<bool> = mask.iter().map(|&m| m >= sel).collect();
+                            let k = movers.iter().filter(|&&m| m).count() as f64;
                             let mse = |a: &RgbImage| {
                                 psnr_masked(a, &truth, &movers)
                                     .map(|p| 255.0f64.powi(2) / 10f64.powf(p / 10.0))
                                     .unwrap_or(0.0)
                             };
-                            ps = [mse(&bg_cache[&i].rgb) * k, mse(&frame_cache[&i].rgb) * k, k];
+                            if k > 0.0 {
+                                ps[slot] = mse(&bg_cache[&i].rgb) * k;
+                                ps[slot + 1] = mse(&frame_cache[&i].rgb) * k;
+                                ps[slot + 2] = k;
+                            }
                         }
                     }
                 }
@@ -698,8 +719,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         compute_secs += t0.elapsed().as_secs_f64();
         for (acc, ps) in results {
             roc.merge(&acc);
-            for k in 0..3 {
-                psnr_acc[k] += ps[k];
+            for (a, p) in psnr_acc.iter_mut().zip(ps) {
+                *a += p;
             }
         }
     }
@@ -734,28 +755,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.eval_masks {
         let auc = roc.auc();
         let iou = roc.iou();
-        let psnr = |se: f64| 10.0 * (255.0f64.powi(2) / (se / psnr_acc[2])).log10();
-        let (bg_psnr, raw_psnr) = if psnr_acc[2] > 0.0 {
-            (Some(psnr(psnr_acc[0])), Some(psnr(psnr_acc[1])))
-        } else {
-            (None, None)
-        };
+        let psnr =
+            |se: f64, n: f64| (n > 0.0).then(|| 10.0 * (255.0f64.powi(2) / (se / n)).log10());
+        let bg_psnr = psnr(psnr_acc[0], psnr_acc[2]);
+        let raw_psnr = psnr(psnr_acc[1], psnr_acc[2]);
+        let bg_psnr_moving = psnr(psnr_acc[3], psnr_acc[5]);
+        let raw_psnr_moving = psnr(psnr_acc[4], psnr_acc[5]);
+        let best = roc.best_iou();
         println!(
-            "eval: ROC-AUC {} IoU(P>0.5) {} over {} moving / {} other pixels",
+            "eval: ROC-AUC {} IoU(P>0.5) {} best IoU {} over {} moving / {} other pixels",
             auc.map_or("n/a".into(), |v| format!("{v:.4}")),
             iou.map_or("n/a".into(), |v| format!("{v:.4}")),
+            best.map_or("n/a".into(), |(t, v)| format!("{v:.4} (P>{t:.3})")),
             roc.positives(),
             roc.negatives()
         );
         if let (Some(b), Some(r)) = (bg_psnr, raw_psnr) {
             println!(
-                "eval: reconstructed background PSNR inside movers {b:.2} dB (frame itself: {r:.2} dB)"
+                "eval: reconstructed background PSNR inside all movers {b:.2} dB (frame itself: {r:.2} dB)"
+            );
+        }
+        if let (Some(b), Some(r)) = (bg_psnr_moving, raw_psnr_moving) {
+            println!(
+                "eval: reconstructed background PSNR inside moving movers {b:.2} dB (frame itself: {r:.2} dB)"
             );
         }
         results["eval"] = json!({
             "roc_auc": auc, "iou_p_gt_0_5": iou,
+            "best_iou": best.map(|b| b.1), "best_iou_threshold": best.map(|b| b.0),
             "moving_pixels": roc.positives(), "other_pixels": roc.negatives(),
             "background_psnr_in_movers_db": bg_psnr, "frame_psnr_in_movers_db": raw_psnr,
+            "background_psnr_in_moving_db": bg_psnr_moving,
+            "frame_psnr_in_moving_db": raw_psnr_moving,
         });
     }
     write_json("complete", results)?;
