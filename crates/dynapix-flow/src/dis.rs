@@ -884,6 +884,9 @@ mod tests {
             (37, 29),
             (101, 7),
             (130, 97),
+            (3, 200),
+            (200, 3),
+            (9, 300),
         ];
         for (w, h) in sizes {
             let tex = pairs::texture(w, h);
@@ -899,6 +902,55 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn displacements_beyond_the_border_stay_finite() {
+        let (w, h) = (64, 48);
+        let b = pairs::texture(w, h);
+        for t in [[30.0f32, -25.0], [-60.0, 0.0]] {
+            let a = pairs::make_a(&b, &FlowField::constant(w, h, t)).unwrap();
+            for preset in [Preset::Ultrafast, Preset::Medium] {
+                let f = DisFlow::with_preset(preset).flow(&a, &b).unwrap();
+                assert!(f.is_finite(), "{t:?} {preset:?}");
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_and_baseline_sweeps_agree_bit_for_bit() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("skipping: no AVX2 on this CPU");
+            return;
+        }
+        let (w, h) = (96, 72);
+        let b = pairs::texture(w, h);
+        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+        let (pa, pb) = (Plane::from_gray(&a), Plane::from_gray(&b));
+        let (ax, ay) = pa.sobel();
+        let bp = pb.padded(SEARCH_BORDER);
+        let ctx = LevelCtx {
+            a: &pa,
+            ax: &ax,
+            ay: &ay,
+            bp: &bp,
+            ps: 8,
+            mean_norm: true,
+            step: 0.125,
+        };
+        let xs = patch_origins(w as usize, 8, 3);
+        let ys = patch_origins(h as usize, 8, 3);
+        let n = xs.len() * ys.len();
+        let init: Vec<f32> = (0..n).map(|i| (i % 7) as f32 * 0.3 - 0.9).collect();
+        let (mut u1, mut v1) = (init.clone(), init.clone());
+        let (mut u2, mut v2) = (init.clone(), init);
+        for forward in [true, false] {
+            sweep_band_impl(&ctx, &xs, &ys, 0, &mut u1, &mut v1, forward, 12, true);
+            // SAFETY: AVX2 support was checked above.
+            unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &mut u2, &mut v2, forward, 12, true) };
+        }
+        assert_eq!((u1, v1), (u2, v2));
     }
 
     #[test]
