@@ -9,7 +9,10 @@
 //!    implementation, two sweeps (forward, then backward) first try the already-solved
 //!    neighbours' displacements (spatial propagation) and keep the candidate with the lowest
 //!    SSD. Sweeps run in fixed bands of patch rows (propagation does not cross a band), so the
-//!    result does not depend on the number of threads;
+//!    result does not depend on the number of threads. Also like OpenCV, each step is a
+//!    fraction (`descent_step`, 1/8) of the Gauss-Newton step, the descent stops after the
+//!    first step from a non-improving point, and a patch that moves further than its size
+//!    keeps its start;
 //! 3. densification (paper §2.2): every pixel averages the displacements of the patches that
 //!    cover it, weighted by `1 / max(1, |B(x + u) − A(x)|)`;
 //! 4. variational refinement (paper §2.3, [`crate::variational`]).
