@@ -9,7 +9,10 @@
 //!    implementation, two sweeps (forward, then backward) first try the already-solved
 //!    neighbours' displacements (spatial propagation) and keep the candidate with the lowest
 //!    SSD. Sweeps run in fixed bands of patch rows (propagation does not cross a band), so the
-//!    result does not depend on the number of threads;
+//!    result does not depend on the number of threads. Also like OpenCV, each step is a
+//!    fraction (`descent_step`, 1/8) of the Gauss-Newton step, the descent stops after the
+//!    first step from a non-improving point, and a patch that moves further than its size
+//!    keeps its start;
 //! 3. densification (paper §2.2): every pixel averages the displacements of the patches that
 //!    cover it, weighted by `1 / max(1, |B(x + u) − A(x)|)`;
 //! 4. variational refinement (paper §2.3, [`crate::variational`]).
@@ -487,6 +490,64 @@ fn patch_sums_8_sse(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
     })
 }
 
+/// [`patch_sums_8_sse`] with one 8-lane AVX vector per row; same lanes, same summation
+/// order, so the same result.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
+    use std::arch::x86_64::*;
+    const N: usize = 8;
+    let (aw, bw) = (ctx.a.w, ctx.bp.w);
+    let (x0, y0) = (x as usize, y as usize);
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let b = &ctx.bp.data;
+    let b_start = y0 * bw + x0;
+    let b_end = (y0 + N) * bw + x0 + N + 1;
+    let a_start = py * aw + px;
+    let a_end = (py + N - 1) * aw + px + N;
+    if b_end > b.len()
+        || a_end > ctx.a.data.len()
+        || a_end > ctx.ax.data.len()
+        || a_end > ctx.ay.data.len()
+    {
+        return [0.0; 4];
+    }
+    let (bp, ap) = (b.as_ptr(), ctx.a.data.as_ptr());
+    let (gxp, gyp) = (ctx.ax.data.as_ptr(), ctx.ay.data.as_ptr());
+    let w00 = _mm256_set1_ps((1.0 - fx) * (1.0 - fy));
+    let w01 = _mm256_set1_ps(fx * (1.0 - fy));
+    let w10 = _mm256_set1_ps((1.0 - fx) * fy);
+    let w11 = _mm256_set1_ps(fx * fy);
+    let (mut sd, mut sdd) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+    let (mut sx, mut sy) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+    for j in 0..N {
+        let ob = b_start + j * bw;
+        let oa = a_start + j * aw;
+        // SAFETY: all loads are within the ranges checked above (8 floats from each offset).
+        unsafe {
+            let r0l = _mm256_loadu_ps(bp.add(ob));
+            let r0r = _mm256_loadu_ps(bp.add(ob + 1));
+            let r1l = _mm256_loadu_ps(bp.add(ob + bw));
+            let r1r = _mm256_loadu_ps(bp.add(ob + bw + 1));
+            let a = _mm256_loadu_ps(ap.add(oa));
+            let t0 = _mm256_add_ps(_mm256_mul_ps(w00, r0l), _mm256_mul_ps(w01, r0r));
+            let t1 = _mm256_add_ps(t0, _mm256_mul_ps(w10, r1l));
+            let d = _mm256_sub_ps(_mm256_add_ps(t1, _mm256_mul_ps(w11, r1r)), a);
+            sd = _mm256_add_ps(sd, d);
+            sdd = _mm256_add_ps(sdd, _mm256_mul_ps(d, d));
+            sx = _mm256_add_ps(sx, _mm256_mul_ps(d, _mm256_loadu_ps(gxp.add(oa))));
+            sy = _mm256_add_ps(sy, _mm256_mul_ps(d, _mm256_loadu_ps(gyp.add(oa))));
+        }
+    }
+    [sd, sdd, sx, sy].map(|v| {
+        let mut o = [0.0f32; 8];
+        // SAFETY: `o` has room for 8 floats.
+        unsafe { _mm256_storeu_ps(o.as_mut_ptr(), v) };
+        o.iter().sum()
+    })
+}
+
 /// Scalar version of [`patch_sums`] for patch sizes without a specialised kernel.
 #[inline(always)]
 fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
@@ -514,10 +575,21 @@ fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32;
 /// Patch cost at displacement (u, v) and the Gauss-Newton right-hand side:
 /// `(SSD, Σ ∇A·d)`, both mean-normalised when enabled.
 #[inline(always)]
-fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) -> (f32, f32, f32) {
+fn evaluate<const AVX: bool>(
+    ctx: &LevelCtx,
+    t: &Template,
+    px: usize,
+    py: usize,
+    u: f32,
+    v: f32,
+) -> (f32, f32, f32) {
     let x = px as f32 + u + SEARCH_BORDER as f32;
     let y = py as f32 + v + SEARCH_BORDER as f32;
     let [sd, sdd, sdx, sdy] = match ctx.ps {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `AVX` is only true in code reached through `sweep_band_avx2`, which runs
+        // after a run-time AVX2 check.
+        8 if AVX => unsafe { patch_sums_8_avx(ctx, px, py, x, y) },
         #[cfg(target_arch = "x86_64")]
         8 => patch_sums_8_sse(ctx, px, py, x, y),
         #[cfg(not(target_arch = "x86_64"))]
@@ -544,7 +616,7 @@ fn evaluate(ctx: &LevelCtx, t: &Template, px: usize, py: usize, u: f32, v: f32) 
 /// discarded (the match was lost).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn descend(
+fn descend<const AVX: bool>(
     ctx: &LevelCtx,
     t: &Template,
     px: usize,
@@ -559,7 +631,7 @@ fn descend(
     let mut prev = f32::INFINITY;
     for it in 0..iters {
         if it > 0 {
-            (ssd, bx, by) = evaluate(ctx, t, px, py, u, v);
+            (ssd, bx, by) = evaluate::<AVX>(ctx, t, px, py, u, v);
         }
         let du = t.hinv[0] * bx + t.hinv[1] * by;
         let dv = t.hinv[1] * bx + t.hinv[2] * by;
@@ -598,7 +670,7 @@ fn sweep_band(
         unsafe { sweep_band_avx2(ctx, xs, ys, row0, su, sv, forward, iters, propagate) };
         return;
     }
-    sweep_band_impl(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+    sweep_band_impl::<false>(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -615,14 +687,14 @@ fn sweep_band_avx2(
     iters: usize,
     propagate: bool,
 ) {
-    sweep_band_impl(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+    sweep_band_impl::<true>(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
 }
 
 /// One sweep over a band of patch rows. `forward` goes left-to-right/top-down and proposes
 /// the left and upper neighbours; backward the right and lower ones.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn sweep_band_impl(
+fn sweep_band_impl<const AVX: bool>(
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],
@@ -649,7 +721,7 @@ fn sweep_band_impl(
             if !t.textured && !propagate {
                 continue;
             }
-            let mut best = evaluate(ctx, &t, px, py, bu, bv);
+            let mut best = evaluate::<AVX>(ctx, &t, px, py, bu, bv);
             if propagate {
                 let horiz = if forward {
                     (c > 0).then(|| idx - 1)
@@ -666,7 +738,7 @@ fn sweep_band_impl(
                     if cu == bu && cv == bv {
                         continue;
                     }
-                    let e = evaluate(ctx, &t, px, py, cu, cv);
+                    let e = evaluate::<AVX>(ctx, &t, px, py, cu, cv);
                     if e.0 < best.0 {
                         best = e;
                         bu = cu;
@@ -675,7 +747,7 @@ fn sweep_band_impl(
                 }
             }
             let (u, v) = if t.textured {
-                descend(ctx, &t, px, py, bu, bv, best, iters)
+                descend::<AVX>(ctx, &t, px, py, bu, bv, best, iters)
             } else {
                 (bu, bv)
             };
@@ -884,6 +956,9 @@ mod tests {
             (37, 29),
             (101, 7),
             (130, 97),
+            (3, 200),
+            (200, 3),
+            (9, 300),
         ];
         for (w, h) in sizes {
             let tex = pairs::texture(w, h);
@@ -899,6 +974,55 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn displacements_beyond_the_border_stay_finite() {
+        let (w, h) = (64, 48);
+        let b = pairs::texture(w, h);
+        for t in [[30.0f32, -25.0], [-60.0, 0.0]] {
+            let a = pairs::make_a(&b, &FlowField::constant(w, h, t)).unwrap();
+            for preset in [Preset::Ultrafast, Preset::Medium] {
+                let f = DisFlow::with_preset(preset).flow(&a, &b).unwrap();
+                assert!(f.is_finite(), "{t:?} {preset:?}");
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_and_baseline_sweeps_agree_bit_for_bit() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("skipping: no AVX2 on this CPU");
+            return;
+        }
+        let (w, h) = (96, 72);
+        let b = pairs::texture(w, h);
+        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+        let (pa, pb) = (Plane::from_gray(&a), Plane::from_gray(&b));
+        let (ax, ay) = pa.sobel();
+        let bp = pb.padded(SEARCH_BORDER);
+        let ctx = LevelCtx {
+            a: &pa,
+            ax: &ax,
+            ay: &ay,
+            bp: &bp,
+            ps: 8,
+            mean_norm: true,
+            step: 0.125,
+        };
+        let xs = patch_origins(w as usize, 8, 3);
+        let ys = patch_origins(h as usize, 8, 3);
+        let n = xs.len() * ys.len();
+        let init: Vec<f32> = (0..n).map(|i| (i % 7) as f32 * 0.3 - 0.9).collect();
+        let (mut u1, mut v1) = (init.clone(), init.clone());
+        let (mut u2, mut v2) = (init.clone(), init);
+        for forward in [true, false] {
+            sweep_band_impl::<false>(&ctx, &xs, &ys, 0, &mut u1, &mut v1, forward, 12, true);
+            // SAFETY: AVX2 support was checked above.
+            unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &mut u2, &mut v2, forward, 12, true) };
+        }
+        assert_eq!((u1, v1), (u2, v2));
     }
 
     #[test]

@@ -186,6 +186,26 @@ impl Plane {
         (gx, gy)
     }
 
+    /// Vertical central difference only (see [`Plane::central_diff`]).
+    pub fn diff_y(&self) -> Plane {
+        let (w, h) = (self.w, self.h);
+        let mut gy = Plane::zeros(w, h);
+        gy.data
+            .par_chunks_mut(w)
+            .enumerate()
+            .with_min_len(min_rows(w))
+            .for_each(|(y, ry)| {
+                let ym = y.saturating_sub(1);
+                let yp = (y + 1).min(h - 1);
+                let a = &self.data[ym * w..(ym + 1) * w];
+                let c = &self.data[yp * w..(yp + 1) * w];
+                for ((o, &top), &bot) in ry.iter_mut().zip(a).zip(c) {
+                    *o = 0.5 * (bot - top);
+                }
+            });
+        gy
+    }
+
     /// A copy with `border` replicated pixels on every side (size `(w+2b) × (h+2b)`).
     pub fn padded(&self, border: usize) -> Plane {
         let pw = self.w + 2 * border;

@@ -65,17 +65,19 @@ struct DataCoeffs {
     gyz: Vec<f32>,
 }
 
-fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
+fn data_coeffs(i0: &Plane, warped: Plane, zeta: f32) -> DataCoeffs {
     let (w, h) = (i0.w, i0.h);
-    // Spatial derivatives on the average of both images make the linearisation symmetric.
-    let mut avg = Plane::zeros(w, h);
+    // Spatial derivatives on the average of both images make the linearisation symmetric;
+    // the warped image is turned into that average in place.
+    let mut avg = warped;
     let mut iz = Plane::zeros(w, h);
     avg.data
         .par_iter_mut()
         .zip(iz.data.par_iter_mut())
-        .zip(i0.data.par_iter().zip(warped.data.par_iter()))
+        .zip(i0.data.par_iter())
         .with_min_len(MIN_PAR_PIXELS)
-        .for_each(|((a, z), (&p0, &p1))| {
+        .for_each(|((a, z), &p0)| {
+            let p1 = *a;
             *a = 0.5 * (p0 + p1);
             *z = p1 - p0;
         });
@@ -83,7 +85,7 @@ fn data_coeffs(i0: &Plane, warped: &Plane, zeta: f32) -> DataCoeffs {
     let (ix, iy) = avg.central_diff();
     let (ixz, iyz) = iz.central_diff();
     let (ixx, ixy) = ix.central_diff();
-    let (_, iyy) = iy.central_diff();
+    let iyy = iy.diff_y();
     let n = w * h;
     let mut c = DataCoeffs {
         bx: vec![0.0; n],
@@ -197,7 +199,7 @@ pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variatio
     }
     let (w, h) = (i0.w, i0.h);
     let warped = warp_plane(i1, u, v);
-    let dc = data_coeffs(i0, &warped, p.zeta);
+    let dc = data_coeffs(i0, warped, p.zeta);
     let lay = RbLayout::new(w, h);
     let mut du = [vec![0.0f32; lay.len()], vec![0.0f32; lay.len()]];
     let mut dv = [vec![0.0f32; lay.len()], vec![0.0f32; lay.len()]];
