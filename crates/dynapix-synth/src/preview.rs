@@ -36,7 +36,6 @@ pub fn contact_sheet(
             (b as u32 % grid_cols) * block_w,
             (b as u32 / grid_cols) * block_h,
         );
-        let mut row = 0u32;
         let frames = times
             .iter()
             .map(|t| (t * base.fps).round() as usize + 1)
@@ -48,7 +47,8 @@ pub fn contact_sheet(
             ..base.clone()
         };
         let seq = Sequence::with_scene(params, scene.clone())?;
-        for &t in times {
+        for (row, &t) in times.iter().enumerate() {
+            let row = row as u32;
             let i = (t * base.fps).round() as usize;
             let (f, _) = seq.frame(i, None);
             let mask = RgbImage::from_fn(w, h, |x, y| {
@@ -68,7 +68,6 @@ pub fn contact_sheet(
                     (by + row * th) as i64,
                 );
             }
-            row += 1;
         }
     }
     Ok(sheet)
