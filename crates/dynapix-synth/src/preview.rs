@@ -7,8 +7,10 @@ use crate::{Scene, SynthError};
 use image::{Rgb, RgbImage, imageops};
 use std::sync::Arc;
 
-/// Builds the contact sheet: each row is one (preset, frame), columns are rgb, background,
-/// mask, depth, each scaled to `thumb_width` pixels wide. Frames are picked at `times` (s).
+/// Builds the contact sheet: one block per preset, blocks laid out row-major in a grid of
+/// `ceil(sqrt(n))` columns (so 9 presets make a 3×3 grid); inside a block each row is one
+/// frame (picked at `times`, seconds) and the columns are rgb, background, mask and depth, each
+/// scaled to `thumb_width` pixels wide. Blocks are separated by a 4-pixel grey border.
 pub fn contact_sheet(
     base: &SynthParams,
     presets: &[Preset],
@@ -19,10 +21,21 @@ pub fn contact_sheet(
     let (w, h) = (base.camera.width, base.camera.height);
     let tw = thumb_width.max(16);
     let th = (tw as u64 * h as u64 / w.max(1) as u64).max(1) as u32;
-    let rows = presets.len() * times.len();
-    let mut sheet = RgbImage::from_pixel(4 * tw, rows as u32 * th, Rgb([0, 0, 0]));
-    let mut row = 0u32;
-    for &preset in presets {
+    let grid_cols = (presets.len() as f64).sqrt().ceil().max(1.0) as u32;
+    let grid_rows = (presets.len() as u32).div_ceil(grid_cols);
+    let gap = 4u32;
+    let block_w = 4 * tw + gap;
+    let block_h = times.len() as u32 * th + gap;
+    let mut sheet = RgbImage::from_pixel(
+        grid_cols * block_w,
+        grid_rows * block_h,
+        Rgb([128, 128, 128]),
+    );
+    for (b, &preset) in presets.iter().enumerate() {
+        let (bx, by) = (
+            (b as u32 % grid_cols) * block_w,
+            (b as u32 / grid_cols) * block_h,
+        );
         let frames = times
             .iter()
             .map(|t| (t * base.fps).round() as usize + 1)
@@ -34,7 +47,8 @@ pub fn contact_sheet(
             ..base.clone()
         };
         let seq = Sequence::with_scene(params, scene.clone())?;
-        for &t in times {
+        for (row, &t) in times.iter().enumerate() {
+            let row = row as u32;
             let i = (t * base.fps).round() as usize;
             let (f, _) = seq.frame(i, None);
             let mask = RgbImage::from_fn(w, h, |x, y| {
@@ -50,11 +64,10 @@ pub fn contact_sheet(
                 imageops::replace(
                     &mut sheet,
                     &small,
-                    (c as u32 * tw) as i64,
-                    (row * th) as i64,
+                    (bx + c as u32 * tw) as i64,
+                    (by + row * th) as i64,
                 );
             }
-            row += 1;
         }
     }
     Ok(sheet)

@@ -280,7 +280,7 @@ pub fn render(
     let (bg_depth, bg_id) = (&*bg_depth, &*bg_id);
     bg_rgb.par_chunks_mut(w).enumerate().for_each(|(y, brow)| {
         let yn = (y as f32 - k.cy) / k.fy;
-        for x in 0..w {
+        for (x, out_px) in brow.iter_mut().enumerate() {
             let i = y * w + x;
             let c = bg_id[i];
             let edge = params.edge_aa
@@ -288,7 +288,7 @@ pub fn render(
                     || (x + 1 < w && bg_id[i + 1] != c)
                     || (y > 0 && bg_id[i - w] != c)
                     || (y + 1 < h && bg_id[i + w] != c));
-            brow[x] = if edge {
+            *out_px = if edge {
                 // A sub-pixel ray hits a surface seen at the pixel or at one of its neighbours.
                 let mut cand = [NO_HIT; 9];
                 let mut n = 0;
@@ -325,9 +325,9 @@ pub fn render(
     let bg_rgb = &*bg_rgb;
     rgb.par_chunks_mut(w).enumerate().for_each(|(y, frow)| {
         let yn = (y as f32 - k.cy) / k.fy;
-        for x in 0..w {
+        for (x, out_px) in frow.iter_mut().enumerate() {
             let i = y * w + x;
-            frow[x] = if id[i] == bg_id[i] {
+            *out_px = if id[i] == bg_id[i] {
                 bg_rgb[i]
             } else {
                 let xn = (x as f32 - k.cx) / k.fx;
@@ -357,6 +357,7 @@ impl ShadeCtx<'_> {
     /// particular: the nearest hit wins, ties go to the lower id).
     /// Sub-rays that hit the centre's primitive reuse the centre colour `centre.1` (textures
     /// are prefiltered, so only the silhouette needs the extra samples).
+    #[allow(clippy::too_many_arguments)]
     fn shade_supersampled(
         &self,
         x: usize,

@@ -767,6 +767,67 @@ mod tests {
     }
 
     #[test]
+    fn flow_warps_next_frame_onto_this_one_on_moving_pixels() {
+        // Independent of the geometry used to compute it: sampling frame t+1 at x + flow must
+        // reproduce frame t's colour (clean sensor, pixels still visible at t+1).
+        let seq = Sequence::new(small(Preset::WalkingStatic, 4, SensorParams::clean()))
+            .expect("sequence");
+        let (w, h) = (seq.intrinsics().width, seq.intrinsics().height);
+        let (mut err_flow, mut err_zero, mut n) = (0.0f64, 0.0f64, 0usize);
+        for i in [70, 100, 130] {
+            let (f0, flow) = seq.frame(i, Some(1));
+            let flow = flow.expect("flow");
+            let (f1, _) = seq.frame(i + 1, None);
+            let g = |img: &RgbImage, x: usize, y: usize| {
+                let p = img.get_pixel(x as u32, y as u32);
+                (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
+            };
+            for y in 2..h - 2 {
+                for x in 2..w - 2 {
+                    let j = y * w + x;
+                    if f0.mask.as_raw()[j] != 255 {
+                        continue;
+                    }
+                    let [u, v] = flow.data[j];
+                    let (tx, ty) = (x as f32 + u, y as f32 + v);
+                    if !(1.0..(w - 2) as f32).contains(&tx) || !(1.0..(h - 2) as f32).contains(&ty)
+                    {
+                        continue;
+                    }
+                    let (xi, yi) = (tx.round() as usize, ty.round() as usize);
+                    // Same mover visible there at t+1 (not occluded), away from its silhouette.
+                    let inst = f0.instance.as_raw()[j];
+                    if (0..9).any(|k| {
+                        f1.instance.as_raw()[(yi + k / 3 - 1) * w + xi + k % 3 - 1] != inst
+                    }) {
+                        continue;
+                    }
+                    // Bilinear sample of frame t+1.
+                    let (x0, y0) = (tx.floor() as usize, ty.floor() as usize);
+                    let (ax, ay) = ((tx - x0 as f32) as f64, (ty - y0 as f32) as f64);
+                    let s = g(&f1.rgb, x0, y0) * (1.0 - ax) * (1.0 - ay)
+                        + g(&f1.rgb, x0 + 1, y0) * ax * (1.0 - ay)
+                        + g(&f1.rgb, x0, y0 + 1) * (1.0 - ax) * ay
+                        + g(&f1.rgb, x0 + 1, y0 + 1) * ax * ay;
+                    let c = g(&f0.rgb, x, y);
+                    err_flow += (s - c).abs();
+                    err_zero += (g(&f1.rgb, x, y) - c).abs();
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 300, "only {n} moving pixels checked");
+        let (ef, ez) = (err_flow / n as f64, err_zero / n as f64);
+        eprintln!(
+            "moving pixels {n}: warp error {ef:.2} grey levels with GT flow, {ez:.2} with zero flow"
+        );
+        assert!(
+            ef < 5.0 && ef < 0.5 * ez,
+            "mean |I1(x+f) - I0(x)| = {ef:.2} vs {ez:.2} with zero flow"
+        );
+    }
+
+    #[test]
     fn same_seed_same_frames_different_seed_differs() {
         let a = Sequence::new(small(Preset::Flying, 9, SensorParams::full())).expect("a");
         let b = Sequence::new(small(Preset::Flying, 9, SensorParams::full())).expect("b");

@@ -39,7 +39,10 @@ pub struct Args {
     /// Also write ground-truth flow from frame t to t+K (`flow/<ts>.flo`, Middlebury).
     #[arg(long, value_name = "K")]
     pub flow: Option<usize>,
-    /// Write a contact sheet of all presets (rgb, background, mask, depth) to this PNG.
+    /// Write a contact sheet of all presets to this PNG: a 3×3 grid of blocks in the order
+    /// static, walking_xyz, walking_static / walking_rpy, walking_halfsphere, sitting /
+    /// flying, occlusion, loop; in each block rows are t = 0, 2, 4 s and columns rgb,
+    /// background, mask, depth.
     #[arg(long, value_name = "OUT.png")]
     pub preview: Option<PathBuf>,
     /// Sensor realism.
@@ -171,7 +174,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bench(&p, n)?;
     }
     if let Some(path) = &args.preview {
-        let sheet = preview::contact_sheet(&p, &Preset::ALL, &[0.0, 2.0, 4.0], 320)?;
+        let sheet = preview::contact_sheet(&p, &Preset::ALL, &[0.0, 2.0, 4.0], 200)?;
         let bytes = output::rgb_png(path, &sheet)?;
         output::write_atomic(path, &bytes)?;
         eprintln!("contact sheet written to {}", path.display());
