@@ -471,11 +471,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // Configuration record; a resumed run must use the same one.
     let out_dir = seq.join("prob");
     let config = json!({
-        "sequence": seq.display().to_string(),
         "frames": n,
         "poses": {
             "source": pose_kind,
-            "path": traj_path.display().to_string(),
+            "path": if pose_kind == "gt" { "groundtruth.txt".to_string() } else { traj_path.display().to_string() },
             "interpolation": "slerp",
             "max_gap_s": args.max_pose_gap,
             "noise": noise.map(|(t, r)| json!({"rms_translation_m": t, "rms_rotation_deg": r, "seed": args.seed})),
@@ -514,7 +513,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::fs::create_dir_all(&bgrec_dir)?;
     }
     let write_json = |status: &str, extra: serde_json::Value| -> anyhow::Result<()> {
-        let doc = json!({"config": config, "status": status, "results": extra});
+        let doc = json!({
+            "sequence": seq.display().to_string(),
+            "config": config,
+            "status": status,
+            "results": extra,
+        });
         dynapix_io::write_atomic(&json_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         Ok(())
     };
