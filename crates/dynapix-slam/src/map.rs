@@ -785,8 +785,7 @@ impl Map {
         None
     }
 
-    /// Reference-keyframe id of a point, keyframe-local keypoint level and other read-only
-    /// helpers used by matching: the octave of keypoint `idx` of `kf`.
+    /// Pyramid level of keypoint `idx` of `kf`.
     pub fn keypoint_octave(&self, kf: KeyFrameId, idx: usize) -> Option<u8> {
         self.keyframe(kf)?.keys_un.get(idx).map(|k| k.octave)
     }
