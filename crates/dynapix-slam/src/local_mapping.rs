@@ -1,1 +1,589 @@
-//! (being built)
+//! Local mapping (ORB-SLAM2 `LocalMapping`, spec §6.5/§6.7), run synchronously on each new
+//! keyframe: keyframe insertion (observations, covisibility, spanning tree), culling of recent
+//! map points, triangulation with the best covisible keyframes, fusion with first- and
+//! second-order neighbours, weighted local bundle adjustment and keyframe culling.
+
+use std::collections::{HashMap, HashSet};
+
+use dynapix_optim::{BaEdge, BaParams, BaProblem, Observation};
+use nalgebra::{Matrix4, Vector3};
+
+use crate::frame::{RgbdCamera, transform};
+use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::matcher::{self, MatcherParams};
+use crate::tracking::stereo_camera;
+
+/// Local-mapping parameters (ORB-SLAM2 RGB-D defaults).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LocalMappingParams {
+    /// Recent points with found/visible below this are culled (0.25).
+    pub cull_found_ratio: f32,
+    /// Recent points with at most this many observations … (3 for RGB-D) …
+    pub cull_max_obs: usize,
+    /// … are culled once this many keyframes have passed since creation (2).
+    pub cull_age: u64,
+    /// Points leave the recent list after this many keyframes (3).
+    pub recent_window: u64,
+    /// Covisible keyframes used for triangulation (10).
+    pub triangulation_neighbours: usize,
+    /// Scale-consistency slack factor (1.5 × scale factor).
+    pub ratio_factor_slack: f32,
+    /// Reprojection χ² threshold of mono observations when triangulating (5.991).
+    pub chi2_mono: f64,
+    /// Reprojection χ² threshold of stereo observations when triangulating (7.8).
+    pub chi2_stereo: f64,
+    /// First-order neighbours for fusion (10).
+    pub fuse_neighbours: usize,
+    /// Second-order neighbours per first-order one (5).
+    pub fuse_second: usize,
+    /// Fusion search radius factor (3).
+    pub fuse_th: f32,
+    /// Local BA runs when the map has more keyframes than this (2).
+    pub ba_min_keyframes: usize,
+    /// Keyframe culling: redundant fraction of close points (0.9).
+    pub kf_redundancy: f32,
+    /// Keyframe culling: other keyframes that must see a point (3).
+    pub kf_cull_observers: usize,
+    /// Bundle adjustment parameters.
+    pub ba: BaParams,
+    /// Matcher thresholds.
+    pub matcher: MatcherParams,
+}
+
+impl Default for LocalMappingParams {
+    fn default() -> Self {
+        Self {
+            cull_found_ratio: 0.25,
+            cull_max_obs: 3,
+            cull_age: 2,
+            recent_window: 3,
+            triangulation_neighbours: 10,
+            ratio_factor_slack: 1.5,
+            chi2_mono: 5.991,
+            chi2_stereo: 7.8,
+            fuse_neighbours: 10,
+            fuse_second: 5,
+            fuse_th: 3.0,
+            ba_min_keyframes: 2,
+            kf_redundancy: 0.9,
+            kf_cull_observers: 3,
+            ba: BaParams::default(),
+            matcher: MatcherParams::default(),
+        }
+    }
+}
+
+/// Counters of one local-mapping step.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MappingStats {
+    /// Recent points culled.
+    pub culled_points: usize,
+    /// Points created by triangulation.
+    pub new_points: usize,
+    /// Fused matches.
+    pub fused: usize,
+    /// Observations rejected by local BA.
+    pub ba_outliers: usize,
+    /// Keyframes culled.
+    pub culled_keyframes: usize,
+}
+
+/// The local-mapping stage.
+pub struct LocalMapper {
+    /// Parameters.
+    pub params: LocalMappingParams,
+    cam: RgbdCamera,
+    recent: Vec<MapPointId>,
+}
+
+impl LocalMapper {
+    /// A local mapper for `cam`.
+    pub fn new(cam: RgbdCamera, params: LocalMappingParams) -> Self {
+        Self {
+            params,
+            cam,
+            recent: Vec::new(),
+        }
+    }
+
+    /// Forgets scratch state (after a map reset).
+    pub fn reset(&mut self) {
+        self.recent.clear();
+    }
+
+    /// Runs all local-mapping steps on keyframe `kf`.
+    pub fn process(&mut self, map: &mut Map, kf: KeyFrameId) -> MappingStats {
+        let mut stats = MappingStats::default();
+        self.insert_keyframe(map, kf);
+        stats.culled_points = self.cull_points(map, kf);
+        stats.new_points = self.triangulate(map, kf);
+        stats.fused = self.search_in_neighbors(map, kf);
+        if map.num_keyframes() > self.params.ba_min_keyframes {
+            stats.ba_outliers = self.local_bundle_adjustment(map, kf);
+        }
+        stats.culled_keyframes = self.cull_keyframes(map, kf);
+        stats
+    }
+
+    fn insert_keyframe(&mut self, map: &mut Map, kf: KeyFrameId) {
+        let Some(k) = map.keyframe(kf) else { return };
+        let mps: Vec<(usize, MapPointId)> = k
+            .map_points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.map(|m| (i, m)))
+            .collect();
+        for (i, mp) in mps {
+            if map.point(mp).is_none() {
+                map.set_keyframe_match(kf, i, None);
+                continue;
+            }
+            if !map.is_in_keyframe(mp, kf) {
+                map.add_observation(mp, kf, i);
+                map.update_normal_and_depth(mp);
+                map.compute_distinctive_descriptor(mp);
+            } else {
+                self.recent.push(mp);
+            }
+        }
+        map.update_connections(kf);
+    }
+
+    fn cull_points(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
+        let Some(cur_seq) = map.keyframe(kf).map(|k| k.seq) else {
+            return 0;
+        };
+        let p = &self.params;
+        let mut culled = 0;
+        let mut keep = Vec::with_capacity(self.recent.len());
+        for &mp in &self.recent {
+            let Some(pt) = map.point(mp) else { continue };
+            let age = cur_seq.saturating_sub(pt.first_kf_seq);
+            if pt.found_ratio() < p.cull_found_ratio
+                || (age >= p.cull_age && pt.num_obs <= p.cull_max_obs)
+            {
+                map.cull_point(mp);
+                culled += 1;
+            } else if age < p.recent_window {
+                keep.push(mp);
+            }
+        }
+        self.recent = keep;
+        culled
+    }
+
+    /// Triangulates new points from unmatched keypoints with the best covisible keyframes
+    /// (ORB-SLAM2 `CreateNewMapPoints`, RGB-D branch).
+    fn triangulate(&mut self, map: &mut Map, kf1: KeyFrameId) -> usize {
+        let Some(k1) = map.keyframe(kf1) else {
+            return 0;
+        };
+        let neighbours = k1.best_covisibles(self.params.triangulation_neighbours);
+        let cam = self.cam.clone();
+        let p = &cam.pinhole;
+        let pyr = map.pyramid.clone();
+        let ratio_factor = self.params.ratio_factor_slack * pyr.scale_factor;
+        let mut created = 0;
+        for kf2 in neighbours {
+            let (Some(k1), Some(k2)) = (map.keyframe(kf1), map.keyframe(kf2)) else {
+                continue;
+            };
+            let o1 = k1.center();
+            let o2 = k2.center();
+            if (o2 - o1).norm() < cam.baseline() {
+                continue;
+            }
+            let f12 = matcher::fundamental(k1, k2, &cam);
+            let pairs =
+                matcher::search_for_triangulation(k1, k2, &f12, &cam, &pyr, &self.params.matcher);
+            let t1 = k1.pose;
+            let t2 = k2.pose;
+            let r1w = t1.inverse().rotation;
+            let r2w = t2.inverse().rotation;
+            let mut new_points: Vec<(Vector3<f64>, usize, usize)> = Vec::new();
+            for (i1, i2) in pairs {
+                let kp1 = &k1.keys_un[i1];
+                let kp2 = &k2.keys_un[i2];
+                let ur1 = k1.u_right[i1] as f64;
+                let ur2 = k2.u_right[i2] as f64;
+                let (s1, s2) = (ur1 >= 0.0, ur2 >= 0.0);
+                let xn1 = Vector3::new(
+                    (kp1.x as f64 - p.cx) / p.fx,
+                    (kp1.y as f64 - p.cy) / p.fy,
+                    1.0,
+                );
+                let xn2 = Vector3::new(
+                    (kp2.x as f64 - p.cx) / p.fx,
+                    (kp2.y as f64 - p.cy) / p.fy,
+                    1.0,
+                );
+                let ray1 = r1w * xn1;
+                let ray2 = r2w * xn2;
+                let cos_rays = ray1.dot(&ray2) / (ray1.norm() * ray2.norm());
+                let b = cam.baseline();
+                let cps1 = if s1 {
+                    (2.0 * (b / 2.0).atan2(k1.depth[i1] as f64)).cos()
+                } else {
+                    cos_rays + 1.0
+                };
+                let cps2 = if s2 {
+                    (2.0 * (b / 2.0).atan2(k2.depth[i2] as f64)).cos()
+                } else {
+                    cos_rays + 1.0
+                };
+                let cps = cps1.min(cps2);
+                let x3d = if cos_rays < cps && cos_rays > 0.0 && (s1 || s2 || cos_rays < 0.9998) {
+                    match linear_triangulation(&xn1, &xn2, &t1, &t2) {
+                        Some(x) => x,
+                        None => continue,
+                    }
+                } else if s1 && cps1 < cps2 {
+                    match k1.unproject(i1, &cam) {
+                        Some(x) => x,
+                        None => continue,
+                    }
+                } else if s2 && cps2 < cps1 {
+                    match k2.unproject(i2, &cam) {
+                        Some(x) => x,
+                        None => continue,
+                    }
+                } else {
+                    continue;
+                };
+                let pc1 = transform(&t1, &x3d);
+                let pc2 = transform(&t2, &x3d);
+                if pc1.z <= 0.0 || pc2.z <= 0.0 {
+                    continue;
+                }
+                let reproj_ok =
+                    |pc: &Vector3<f64>, kp: &crate::features::KeyPoint, ur: f64, st: bool| {
+                        let Some((u, v, uru)) = cam.project(pc) else {
+                            return false;
+                        };
+                        let s2 = pyr.sigma2_of(kp.octave as usize) as f64;
+                        let (ex, ey) = (u - kp.x as f64, v - kp.y as f64);
+                        if st {
+                            let er = uru - ur;
+                            ex * ex + ey * ey + er * er <= self.params.chi2_stereo * s2
+                        } else {
+                            ex * ex + ey * ey <= self.params.chi2_mono * s2
+                        }
+                    };
+                if !reproj_ok(&pc1, kp1, ur1, s1) || !reproj_ok(&pc2, kp2, ur2, s2) {
+                    continue;
+                }
+                let d1 = (x3d - o1).norm();
+                let d2 = (x3d - o2).norm();
+                if d1 == 0.0 || d2 == 0.0 {
+                    continue;
+                }
+                let ratio_dist = (d2 / d1) as f32;
+                let ratio_oct =
+                    pyr.scale_of(kp1.octave as usize) / pyr.scale_of(kp2.octave as usize);
+                if ratio_dist * ratio_factor < ratio_oct || ratio_dist > ratio_oct * ratio_factor {
+                    continue;
+                }
+                new_points.push((x3d, i1, i2));
+            }
+            for (x, i1, i2) in new_points {
+                // Earlier neighbours may have claimed these keypoints in the meantime.
+                let taken1 = map
+                    .keyframe(kf1)
+                    .is_none_or(|k| k.map_points.get(i1).is_none_or(|m| m.is_some()));
+                let taken2 = map
+                    .keyframe(kf2)
+                    .is_none_or(|k| k.map_points.get(i2).is_none_or(|m| m.is_some()));
+                if taken1 || taken2 {
+                    continue;
+                }
+                if let Some(id) = map.create_point(x, kf1, i1) {
+                    map.add_observation(id, kf2, i2);
+                    map.set_keyframe_match(kf2, i2, Some(id));
+                    map.compute_distinctive_descriptor(id);
+                    map.update_normal_and_depth(id);
+                    self.recent.push(id);
+                    created += 1;
+                }
+            }
+        }
+        created
+    }
+
+    /// Fuses the keyframe's points into its neighbours and theirs into it (ORB-SLAM2
+    /// `SearchInNeighbors`).
+    fn search_in_neighbors(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
+        let Some(k) = map.keyframe(kf) else { return 0 };
+        let mut targets: Vec<KeyFrameId> = Vec::new();
+        let mut seen: HashSet<KeyFrameId> = HashSet::new();
+        seen.insert(kf);
+        for n in k.best_covisibles(self.params.fuse_neighbours) {
+            if seen.insert(n) {
+                targets.push(n);
+            }
+        }
+        let first: Vec<KeyFrameId> = targets.clone();
+        for n in first {
+            if let Some(nk) = map.keyframe(n) {
+                for n2 in nk.best_covisibles(self.params.fuse_second) {
+                    if seen.insert(n2) {
+                        targets.push(n2);
+                    }
+                }
+            }
+        }
+        let cam = self.cam.clone();
+        let mut fused = 0;
+        for &t in &targets {
+            let Some(k) = map.keyframe(kf) else {
+                return fused;
+            };
+            let own: Vec<MapPointId> = k.map_points.iter().flatten().copied().collect();
+            fused += matcher::fuse(
+                map,
+                t,
+                &own,
+                &cam,
+                self.params.fuse_th,
+                &self.params.matcher,
+            );
+        }
+        let mut cands: Vec<MapPointId> = Vec::new();
+        let mut cseen: HashSet<MapPointId> = HashSet::new();
+        for &t in &targets {
+            let Some(tk) = map.keyframe(t) else { continue };
+            for &m in tk.map_points.iter().flatten() {
+                if map.point(m).is_some() && cseen.insert(m) {
+                    cands.push(m);
+                }
+            }
+        }
+        fused += matcher::fuse(
+            map,
+            kf,
+            &cands,
+            &cam,
+            self.params.fuse_th,
+            &self.params.matcher,
+        );
+        let own: Vec<MapPointId> = map
+            .keyframe(kf)
+            .map(|k| k.map_points.iter().flatten().copied().collect())
+            .unwrap_or_default();
+        for m in own {
+            map.compute_distinctive_descriptor(m);
+            map.update_normal_and_depth(m);
+        }
+        map.update_connections(kf);
+        fused
+    }
+
+    /// Weighted local BA over the keyframe, its covisibles and their points, with observers
+    /// outside the window held fixed; outlier observations are erased. Returns how many.
+    fn local_bundle_adjustment(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
+        let Some(k) = map.keyframe(kf) else { return 0 };
+        let mut local: Vec<KeyFrameId> = vec![kf];
+        local.extend(
+            k.ordered
+                .iter()
+                .map(|(o, _)| *o)
+                .filter(|o| map.keyframe(*o).is_some()),
+        );
+        let mut pose_index: HashMap<KeyFrameId, usize> = HashMap::new();
+        for (i, &l) in local.iter().enumerate() {
+            pose_index.insert(l, i);
+        }
+        let mut points: Vec<MapPointId> = Vec::new();
+        let mut pseen: HashSet<MapPointId> = HashSet::new();
+        for &l in &local {
+            let Some(lk) = map.keyframe(l) else { continue };
+            for &m in lk.map_points.iter().flatten() {
+                if map.point(m).is_some() && pseen.insert(m) {
+                    points.push(m);
+                }
+            }
+        }
+        let mut kf_ids: Vec<KeyFrameId> = local.clone();
+        for &m in &points {
+            let Some(p) = map.point(m) else { continue };
+            for &o in p.observations.keys() {
+                if !pose_index.contains_key(&o) && map.keyframe(o).is_some() {
+                    pose_index.insert(o, kf_ids.len());
+                    kf_ids.push(o);
+                }
+            }
+        }
+        let n_local = local.len();
+        let origin = map.origin;
+        let mut poses = Vec::with_capacity(kf_ids.len());
+        let mut fixed = Vec::with_capacity(kf_ids.len());
+        for (i, &id) in kf_ids.iter().enumerate() {
+            let Some(k) = map.keyframe(id) else { return 0 };
+            poses.push(k.pose);
+            fixed.push(i >= n_local || Some(id) == origin);
+        }
+        let pyr = &map.pyramid;
+        let mut edges = Vec::new();
+        let mut edge_ref: Vec<(MapPointId, KeyFrameId)> = Vec::new();
+        let mut pts = Vec::with_capacity(points.len());
+        for (pi, &m) in points.iter().enumerate() {
+            let Some(p) = map.point(m) else { return 0 };
+            pts.push(p.position);
+            for (&o, &idx) in &p.observations {
+                let Some(&ki) = pose_index.get(&o) else {
+                    continue;
+                };
+                let Some(k) = map.keyframe(o) else { continue };
+                let Some(kp) = k.keys_un.get(idx) else {
+                    continue;
+                };
+                let ur = k.u_right[idx];
+                edges.push(BaEdge {
+                    pose: ki,
+                    point: pi,
+                    obs: Observation {
+                        uv: [kp.x as f64, kp.y as f64],
+                        u_right: (ur >= 0.0).then_some(ur as f64),
+                        inv_sigma2: pyr.inv_sigma2_of(kp.octave as usize) as f64,
+                        weight: k.weights.get(idx).copied().unwrap_or(1.0) as f64,
+                    },
+                });
+                edge_ref.push((m, o));
+            }
+        }
+        if edges.is_empty() {
+            return 0;
+        }
+        let problem = BaProblem {
+            camera: stereo_camera(&self.cam),
+            poses,
+            pose_fixed: fixed,
+            points: pts,
+            edges,
+        };
+        let result = dynapix_optim::bundle_adjust(&problem, &self.params.ba);
+        let mut outliers = 0;
+        for (e, &(m, o)) in edge_ref.iter().enumerate() {
+            if !result.inlier.get(e).copied().unwrap_or(true) {
+                map.erase_observation(m, o);
+                outliers += 1;
+            }
+        }
+        for (i, &id) in kf_ids.iter().enumerate().take(n_local) {
+            if let (Some(k), Some(p)) = (map.keyframe_mut(id), result.poses.get(i)) {
+                k.pose = crate::frame::normalized(p);
+            }
+        }
+        for (pi, &m) in points.iter().enumerate() {
+            if let (Some(p), Some(x)) = (map.point_mut(m), result.points.get(pi)) {
+                p.position = *x;
+            } else {
+                continue;
+            }
+            map.update_normal_and_depth(m);
+        }
+        outliers
+    }
+
+    /// Culls covisible keyframes whose close points are ≥ 90 % seen by ≥ 3 other keyframes at
+    /// the same or finer scale (ORB-SLAM2 `KeyFrameCulling`).
+    fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
+        let Some(k) = map.keyframe(kf) else { return 0 };
+        let covis: Vec<KeyFrameId> = k.ordered.iter().map(|(o, _)| *o).collect();
+        let th_obs = self.params.kf_cull_observers;
+        let mut culled = 0;
+        for c in covis {
+            if Some(c) == map.origin {
+                continue;
+            }
+            let Some(ck) = map.keyframe(c) else { continue };
+            let mut n_mps = 0usize;
+            let mut n_redundant = 0usize;
+            for (i, m) in ck.map_points.iter().enumerate() {
+                let Some(m) = m else { continue };
+                let Some(p) = map.point(*m) else { continue };
+                let d = ck.depth[i] as f64;
+                if d > self.cam.th_depth || d < 0.0 {
+                    continue;
+                }
+                n_mps += 1;
+                if p.num_obs > th_obs {
+                    let level = ck.keys_un[i].octave as i32;
+                    let mut n_obs = 0;
+                    for (&o, &oi) in &p.observations {
+                        if o == c {
+                            continue;
+                        }
+                        let Some(ol) = map.keypoint_octave(o, oi) else {
+                            continue;
+                        };
+                        if ol as i32 <= level + 1 {
+                            n_obs += 1;
+                            if n_obs >= th_obs {
+                                break;
+                            }
+                        }
+                    }
+                    if n_obs >= th_obs {
+                        n_redundant += 1;
+                    }
+                }
+            }
+            if n_redundant as f32 > self.params.kf_redundancy * n_mps as f32 {
+                map.cull_keyframe(c);
+                culled += 1;
+            }
+        }
+        culled
+    }
+}
+
+/// Linear (DLT) triangulation from normalised coordinates in two views with poses `T_cw`.
+fn linear_triangulation(
+    xn1: &Vector3<f64>,
+    xn2: &Vector3<f64>,
+    t1: &dynapix_geometry::Se3,
+    t2: &dynapix_geometry::Se3,
+) -> Option<Vector3<f64>> {
+    let p1 = t1.to_homogeneous();
+    let p2 = t2.to_homogeneous();
+    let mut a = Matrix4::zeros();
+    a.set_row(0, &(xn1.x * p1.row(2) - p1.row(0)));
+    a.set_row(1, &(xn1.y * p1.row(2) - p1.row(1)));
+    a.set_row(2, &(xn2.x * p2.row(2) - p2.row(0)));
+    a.set_row(3, &(xn2.y * p2.row(2) - p2.row(1)));
+    let svd = a.svd(false, true);
+    let vt = svd.v_t?;
+    let (imin, _) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let x = vt.row(imin);
+    if x[3].abs() < 1e-12 {
+        return None;
+    }
+    Some(Vector3::new(x[0] / x[3], x[1] / x[3], x[2] / x[3]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynapix_geometry::Se3;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn dlt_triangulation_recovers_a_point() {
+        let x = Vector3::new(0.2, -0.1, 2.0);
+        let t1 = Se3::identity();
+        let t2 = Se3::from_parts(
+            Translation3::new(-0.3, 0.05, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.05, 0.0),
+        );
+        let n = |t: &Se3| {
+            let c = transform(t, &x);
+            Vector3::new(c.x / c.z, c.y / c.z, 1.0)
+        };
+        let r = linear_triangulation(&n(&t1), &n(&t2), &t1, &t2).unwrap();
+        assert!((r - x).norm() < 1e-9, "{r:?}");
+    }
+}

@@ -1,1 +1,256 @@
-//! (being built)
+//! The SLAM system: owns the map and the stages and runs them in a fixed order per frame
+//! (feature extraction, tracking, then local mapping on a new keyframe), so the same input
+//! always gives the same trajectory (design §7, spec §7.22). Frame poses are stored relative
+//! to their reference keyframe and recomposed on demand, so later BA corrections reach them
+//! (ORB-SLAM2 `SaveTrajectoryTUM`).
+
+use std::time::Instant;
+
+use dynapix_geometry::Se3;
+use image::GrayImage;
+
+use crate::features::{Descriptor, KeyPoint};
+use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid, WeightImage};
+use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
+use crate::map::{KeyFrameId, Map, MapParams};
+use crate::tracking::{Tracker, TrackingParams, TrackingState};
+
+/// Produces keypoints (level-0 image coordinates) and descriptors from a grey image.
+pub trait FeatureExtractor {
+    /// Extracts features.
+    fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>);
+    /// The pyramid the keypoint octaves refer to.
+    fn pyramid(&self) -> ScalePyramid;
+}
+
+/// Parameters of all stages.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SystemParams {
+    /// Tracking.
+    pub tracking: TrackingParams,
+    /// Local mapping.
+    pub mapping: LocalMappingParams,
+    /// Map bookkeeping.
+    pub map: MapParams,
+}
+
+/// One input frame.
+pub struct FrameInput<'a> {
+    /// Timestamp in seconds.
+    pub timestamp: f64,
+    /// Grey image.
+    pub gray: &'a GrayImage,
+    /// Depth in metres (0 = missing), registered to the grey image.
+    pub depth: &'a DepthImage,
+    /// Optional DynaPix weight map w = 1 − P (None = all 1).
+    pub weights: Option<&'a WeightImage>,
+}
+
+/// Wall-clock time of the steps of one frame, in seconds (measurement only).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepTimes {
+    /// Feature extraction.
+    pub extract: f64,
+    /// Tracking (frame construction, tracking, keyframe decision), without extraction.
+    pub track: f64,
+    /// Local mapping (0 when no keyframe was created).
+    pub mapping: f64,
+}
+
+/// Result of processing one frame.
+#[derive(Clone, Debug)]
+pub struct FrameResult {
+    /// Index of the frame in the input order.
+    pub index: u64,
+    /// Timestamp.
+    pub timestamp: f64,
+    /// State after the frame.
+    pub state: TrackingState,
+    /// Pose `T_cw` at the time of tracking (later BA may refine it; see
+    /// [`System::trajectory`]).
+    pub pose_cw: Option<Se3>,
+    /// A keyframe was created from this frame.
+    pub new_keyframe: bool,
+    /// Keypoints extracted.
+    pub num_keypoints: usize,
+    /// Inlier map-point matches.
+    pub inliers: usize,
+    /// The map was reset (lost right after initialisation).
+    pub reset: bool,
+    /// Step timings.
+    pub times: StepTimes,
+    /// Local-mapping counters when a keyframe was processed.
+    pub mapping: Option<MappingStats>,
+}
+
+/// One trajectory entry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrajectoryEntry {
+    /// Timestamp.
+    pub timestamp: f64,
+    /// State of the frame.
+    pub state: TrackingState,
+    /// Camera-to-world pose `T_wc` for tracked frames.
+    pub pose_wc: Option<Se3>,
+}
+
+#[derive(Clone, Debug)]
+struct Record {
+    timestamp: f64,
+    state: TrackingState,
+    /// Reference keyframe and `T_cr`.
+    relative: Option<(KeyFrameId, Se3)>,
+    /// Absolute `T_cw` frozen at a map reset.
+    frozen: Option<Se3>,
+}
+
+/// The SLAM system.
+pub struct System<E> {
+    extractor: E,
+    cam: RgbdCamera,
+    bounds: ImageBounds,
+    map: Map,
+    tracker: Tracker,
+    mapper: LocalMapper,
+    records: Vec<Record>,
+    next_index: u64,
+}
+
+impl<E: FeatureExtractor> System<E> {
+    /// A system for `cam` using `extractor`.
+    pub fn new(extractor: E, cam: RgbdCamera, params: SystemParams) -> Self {
+        let pyramid = extractor.pyramid();
+        Self {
+            bounds: cam.image_bounds(),
+            map: Map::new(pyramid, params.map.clone()),
+            tracker: Tracker::new(cam.clone(), params.tracking.clone()),
+            mapper: LocalMapper::new(cam.clone(), params.mapping.clone()),
+            extractor,
+            cam,
+            records: Vec::new(),
+            next_index: 0,
+        }
+    }
+
+    /// The map.
+    pub fn map(&self) -> &Map {
+        &self.map
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> &RgbdCamera {
+        &self.cam
+    }
+
+    /// Tracking state.
+    pub fn state(&self) -> TrackingState {
+        self.tracker.state()
+    }
+
+    /// Processes one frame: extraction, tracking, then local mapping on a new keyframe.
+    pub fn process(&mut self, input: FrameInput<'_>) -> FrameResult {
+        let index = self.next_index;
+        self.next_index += 1;
+        let t0 = Instant::now();
+        let (keys, descs) = self.extractor.extract(input.gray);
+        let t1 = Instant::now();
+        let frame = Frame::new(
+            index,
+            input.timestamp,
+            keys,
+            descs,
+            input.depth,
+            input.weights,
+            &self.cam,
+            self.bounds,
+        );
+        let num_keypoints = frame.len();
+        let out = self.tracker.track(&mut self.map, frame);
+        let t2 = Instant::now();
+        let mut mapping = None;
+        if let Some(kf) = out.new_keyframe {
+            mapping = Some(self.mapper.process(&mut self.map, kf));
+        }
+        let t3 = Instant::now();
+        let mut reset = false;
+        if out.reset_requested {
+            self.freeze_records();
+            self.map.clear();
+            self.tracker.reset();
+            self.mapper.reset();
+            reset = true;
+        }
+        let relative = match (out.pose, out.reference) {
+            (Some(p), Some(r)) if out.state == TrackingState::Ok => {
+                self.map.keyframe_pose(r).map(|rp| (r, p * rp.inverse()))
+            }
+            _ => None,
+        };
+        self.records.push(Record {
+            timestamp: input.timestamp,
+            state: out.state,
+            relative,
+            frozen: None,
+        });
+        FrameResult {
+            index,
+            timestamp: input.timestamp,
+            state: out.state,
+            pose_cw: out.pose,
+            new_keyframe: out.new_keyframe.is_some(),
+            num_keypoints,
+            inliers: out.inliers,
+            reset,
+            times: StepTimes {
+                extract: (t1 - t0).as_secs_f64(),
+                track: (t2 - t1).as_secs_f64(),
+                mapping: (t3 - t2).as_secs_f64(),
+            },
+            mapping,
+        }
+    }
+
+    fn freeze_records(&mut self) {
+        for r in self.records.iter_mut() {
+            if r.frozen.is_none()
+                && let Some((k, tcr)) = r.relative
+            {
+                r.frozen = self.map.keyframe_pose(k).map(|kp| tcr * kp);
+            }
+            r.relative = None;
+        }
+    }
+
+    /// The trajectory so far, one entry per processed frame, with the current (BA-refined)
+    /// estimate of every tracked frame.
+    pub fn trajectory(&self) -> Vec<TrajectoryEntry> {
+        self.records
+            .iter()
+            .map(|r| {
+                let tcw = r.frozen.or_else(|| {
+                    let (k, tcr) = r.relative?;
+                    Some(tcr * self.map.keyframe_pose(k)?)
+                });
+                let tracked = r.state == TrackingState::Ok;
+                TrajectoryEntry {
+                    timestamp: r.timestamp,
+                    state: r.state,
+                    pose_wc: if tracked {
+                        tcw.map(|t| t.inverse())
+                    } else {
+                        None
+                    },
+                }
+            })
+            .collect()
+    }
+
+    /// Keyframes in the map, sorted by creation: `(timestamp, T_wc)`.
+    pub fn keyframe_trajectory(&self) -> Vec<(f64, Se3)> {
+        self.map
+            .keyframes_sorted()
+            .into_iter()
+            .map(|(_, k)| (k.timestamp, k.pose.inverse()))
+            .collect()
+    }
+}

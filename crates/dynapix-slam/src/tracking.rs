@@ -1,1 +1,771 @@
-//! (being built)
+//! Tracking (ORB-SLAM2 `Tracking`, RGB-D path, spec §6.3/§6.4/§6.8): RGB-D initialisation,
+//! motion-model and reference-keyframe tracking, local-map tracking, the keyframe decision and
+//! keyframe creation with close map points, and relocalisation. Scratch state (local
+//! keyframes and points, candidate lists) lives here, keyed by id, never in the map entities.
+
+mod relocalization;
+
+use std::collections::{BTreeMap, HashSet};
+
+use dynapix_geometry::Se3;
+use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem, StereoCamera};
+
+use crate::frame::{Frame, RgbdCamera, normalized, transform};
+use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
+use crate::matcher::{self, MatcherParams, ProjectionCandidate};
+
+pub use relocalization::RelocParams;
+
+/// Tracking state (ORB-SLAM2 `eTrackingState`, without the pre-input states).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackingState {
+    /// No map yet (waiting for a frame with enough features).
+    NotInitialized,
+    /// Tracking.
+    Ok,
+    /// Tracking lost; relocalisation is attempted on every frame.
+    Lost,
+}
+
+/// Tracking parameters (ORB-SLAM2 RGB-D defaults).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackingParams {
+    /// Initialisation needs more keypoints than this (500).
+    pub init_min_features: usize,
+    /// Motion-model search radius factor (15 for RGB-D).
+    pub motion_th: f32,
+    /// Minimum motion-model matches (20; retried with twice the radius).
+    pub motion_min_matches: usize,
+    /// Minimum inlier map points after motion-model or reference tracking (10).
+    pub min_inliers_frame: usize,
+    /// Ratio of the keyframe → frame matching for reference tracking (0.7).
+    pub ref_ratio: f32,
+    /// Minimum keyframe → frame matches (15).
+    pub ref_min_matches: usize,
+    /// Ratio of the local-map search (0.8).
+    pub local_ratio: f32,
+    /// Local-map search radius factor (3 for RGB-D).
+    pub local_th: f32,
+    /// Local-map search radius factor just after relocalisation (5).
+    pub local_th_reloc: f32,
+    /// Minimum local-map inliers (30).
+    pub local_min_inliers: usize,
+    /// Minimum local-map inliers within `fps` frames of a relocalisation (50).
+    pub local_min_inliers_reloc: usize,
+    /// Frustum test: minimum cosine between viewing ray and point normal (0.5).
+    pub view_cos_min: f64,
+    /// Upper bound on the local keyframe list while adding neighbours (80).
+    pub max_local_keyframes: usize,
+    /// Keyframe decision: fraction of the reference's tracked points (0.75).
+    pub kf_ref_ratio: f32,
+    /// Same with fewer than 2 keyframes (0.4).
+    pub kf_ref_ratio_few: f32,
+    /// Keyframe decision c1c fraction (0.25).
+    pub kf_c1c_ratio: f32,
+    /// Keyframe decision: minimum inliers (15).
+    pub kf_min_inliers: usize,
+    /// needClose: tracked close points below this (100) …
+    pub kf_close_tracked: usize,
+    /// … and untracked close points above this (70).
+    pub kf_close_untracked: usize,
+    /// Frames since the last keyframe before inserting (mMinFrames = 0).
+    pub min_frames: u64,
+    /// Close points a new keyframe creates at least (100).
+    pub kf_new_points: usize,
+    /// Reset the map when lost with at most this many keyframes (5).
+    pub reset_max_keyframes: usize,
+    /// Pose-only optimisation.
+    pub pose: PoseOnlyParams,
+    /// Matcher thresholds.
+    pub matcher: MatcherParams,
+    /// Relocalisation.
+    pub reloc: RelocParams,
+}
+
+impl Default for TrackingParams {
+    fn default() -> Self {
+        Self {
+            init_min_features: 500,
+            motion_th: 15.0,
+            motion_min_matches: 20,
+            min_inliers_frame: 10,
+            ref_ratio: 0.7,
+            ref_min_matches: 15,
+            local_ratio: 0.8,
+            local_th: 3.0,
+            local_th_reloc: 5.0,
+            local_min_inliers: 30,
+            local_min_inliers_reloc: 50,
+            view_cos_min: 0.5,
+            max_local_keyframes: 80,
+            kf_ref_ratio: 0.75,
+            kf_ref_ratio_few: 0.4,
+            kf_c1c_ratio: 0.25,
+            kf_min_inliers: 15,
+            kf_close_tracked: 100,
+            kf_close_untracked: 70,
+            min_frames: 0,
+            kf_new_points: 100,
+            reset_max_keyframes: 5,
+            pose: PoseOnlyParams::default(),
+            matcher: MatcherParams::default(),
+            reloc: RelocParams::default(),
+        }
+    }
+}
+
+/// What tracking did with one frame.
+#[derive(Clone, Debug)]
+pub struct TrackOutcome {
+    /// State after the frame.
+    pub state: TrackingState,
+    /// Pose `T_cw` when tracked.
+    pub pose: Option<Se3>,
+    /// Reference keyframe of the frame.
+    pub reference: Option<KeyFrameId>,
+    /// Keyframe created from this frame (local mapping must process it).
+    pub new_keyframe: Option<KeyFrameId>,
+    /// Inlier map-point matches after local-map tracking.
+    pub inliers: usize,
+    /// Tracking was lost with a tiny map: the caller should reset the map.
+    pub reset_requested: bool,
+    /// The frame was relocalised.
+    pub relocalised: bool,
+}
+
+/// The tracking stage.
+pub struct Tracker {
+    /// Parameters.
+    pub params: TrackingParams,
+    cam: RgbdCamera,
+    state: TrackingState,
+    last_frame: Option<Frame>,
+    /// `(reference keyframe, T_lr)` of the last frame, to refresh its pose after BA.
+    last_relative: Option<(KeyFrameId, Se3)>,
+    velocity: Option<Se3>,
+    reference_kf: Option<KeyFrameId>,
+    last_kf_frame: u64,
+    last_reloc_frame: u64,
+    local_kfs: Vec<KeyFrameId>,
+    local_points: Vec<MapPointId>,
+    inliers: usize,
+    last_known_pose: Option<Se3>,
+}
+
+impl Tracker {
+    /// A tracker for `cam`.
+    pub fn new(cam: RgbdCamera, params: TrackingParams) -> Self {
+        Self {
+            params,
+            cam,
+            state: TrackingState::NotInitialized,
+            last_frame: None,
+            last_relative: None,
+            velocity: None,
+            reference_kf: None,
+            last_kf_frame: 0,
+            last_reloc_frame: 0,
+            local_kfs: Vec::new(),
+            local_points: Vec::new(),
+            inliers: 0,
+            last_known_pose: None,
+        }
+    }
+
+    /// Current state.
+    pub fn state(&self) -> TrackingState {
+        self.state
+    }
+
+    /// Forgets everything tied to the map (after a map reset). The last known pose is kept so a
+    /// re-initialised map continues in the same world frame.
+    pub fn reset(&mut self) {
+        let keep = self.last_known_pose;
+        *self = Self::new(self.cam.clone(), self.params.clone());
+        self.last_known_pose = keep;
+    }
+
+    fn max_frames(&self) -> u64 {
+        self.cam.fps.max(1.0).round() as u64
+    }
+
+    /// Tracks one frame: initialises, tracks or relocalises, then decides on a keyframe
+    /// (ORB-SLAM2 `Tracking::Track`).
+    pub fn track(&mut self, map: &mut Map, mut frame: Frame) -> TrackOutcome {
+        let mut out = TrackOutcome {
+            state: self.state,
+            pose: None,
+            reference: None,
+            new_keyframe: None,
+            inliers: 0,
+            reset_requested: false,
+            relocalised: false,
+        };
+        if self.state == TrackingState::NotInitialized {
+            if frame.len() > self.params.init_min_features
+                && frame.depth.iter().filter(|&&d| d > 0.0).count() > 0
+            {
+                let kf = self.initialize(map, &mut frame);
+                out.new_keyframe = Some(kf);
+                out.state = TrackingState::Ok;
+                out.pose = frame.pose;
+                out.reference = Some(kf);
+                out.inliers = frame.map_points.iter().flatten().count();
+                self.record_last(map, frame);
+            }
+            return out;
+        }
+        self.refresh_last_frame(map);
+        let mut ok;
+        if self.state == TrackingState::Ok {
+            let just_relocalised = frame.id < self.last_reloc_frame + 2;
+            if self.velocity.is_none() || just_relocalised {
+                ok = self.track_reference_keyframe(map, &mut frame);
+            } else {
+                ok = self.track_with_motion_model(map, &mut frame);
+                if !ok {
+                    ok = self.track_reference_keyframe(map, &mut frame);
+                }
+            }
+        } else {
+            ok = self.relocalize(map, &mut frame);
+            out.relocalised = ok;
+        }
+        frame.reference = self.reference_kf;
+        if ok {
+            ok = self.track_local_map(map, &mut frame);
+        }
+        self.state = if ok {
+            TrackingState::Ok
+        } else {
+            TrackingState::Lost
+        };
+        out.state = self.state;
+        out.inliers = self.inliers;
+        if ok {
+            if let (Some(cur), Some(last)) =
+                (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
+            {
+                self.velocity = Some(normalized(&(cur * last.inverse())));
+                tracing::debug!(
+                    frame = frame.id,
+                    vel_t = self.velocity.map(|v| v.translation.vector.norm()),
+                    vel_r = self.velocity.map(|v| v.rotation.angle()),
+                    "velocity"
+                );
+            } else {
+                self.velocity = None;
+            }
+            // Matches to points that lost all observations are dropped.
+            for m in frame.map_points.iter_mut() {
+                if let Some(id) = m
+                    && map.point(*id).is_none_or(|p| p.num_obs < 1)
+                {
+                    *m = None;
+                }
+            }
+            if self.need_new_keyframe(map, &frame) {
+                out.new_keyframe = self.create_keyframe(map, &mut frame);
+            }
+            for i in 0..frame.len() {
+                if frame.outlier[i] {
+                    frame.map_points[i] = None;
+                }
+            }
+            out.pose = frame.pose;
+            self.last_known_pose = frame.pose;
+        } else {
+            self.velocity = None;
+            if map.num_keyframes() <= self.params.reset_max_keyframes {
+                out.reset_requested = true;
+                out.reference = frame.reference.or(self.reference_kf);
+                return out;
+            }
+        }
+        if frame.reference.is_none() {
+            frame.reference = self.reference_kf;
+        }
+        out.reference = frame.reference;
+        if ok {
+            self.record_last(map, frame);
+        } else {
+            // Keep the previous last frame for relocalisation bookkeeping; a lost frame has no
+            // pose to propagate.
+            self.last_relative = None;
+        }
+        out
+    }
+
+    fn record_last(&mut self, map: &Map, frame: Frame) {
+        self.last_relative = match (frame.reference, frame.pose) {
+            (Some(r), Some(p)) => map.keyframe_pose(r).map(|rp| (r, p * rp.inverse())),
+            _ => None,
+        };
+        self.last_frame = Some(frame);
+    }
+
+    /// ORB-SLAM2 `UpdateLastFrame`: the last pose follows its reference keyframe (moved by BA);
+    /// replaced map points are followed, stale ones dropped.
+    fn refresh_last_frame(&mut self, map: &Map) {
+        let Some(last) = self.last_frame.as_mut() else {
+            return;
+        };
+        if let Some((r, tlr)) = self.last_relative
+            && let Some(rp) = map.keyframe_pose(r)
+        {
+            last.pose = Some(tlr * rp);
+        }
+        for m in last.map_points.iter_mut() {
+            if let Some(id) = *m {
+                *m = map.resolve(id);
+            }
+        }
+    }
+
+    /// RGB-D initialisation: first keyframe at the last known pose (identity at start) with a
+    /// map point for every keypoint with depth (ORB-SLAM2 `StereoInitialization`).
+    fn initialize(&mut self, map: &mut Map, frame: &mut Frame) -> KeyFrameId {
+        let pose = self.last_known_pose.unwrap_or_else(Se3::identity);
+        frame.pose = Some(pose);
+        let kf = map.insert_keyframe(KeyFrame::from_frame(frame, 0, pose));
+        for i in 0..frame.len() {
+            if let Some(x) = frame.unproject(i, &self.cam)
+                && let Some(mp) = map.create_point(x, kf, i)
+            {
+                frame.map_points[i] = Some(mp);
+            }
+        }
+        frame.reference = Some(kf);
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = frame.id;
+        self.local_kfs = vec![kf];
+        self.local_points = map
+            .keyframe(kf)
+            .map(|k| k.map_points.iter().flatten().copied().collect())
+            .unwrap_or_default();
+        self.state = TrackingState::Ok;
+        self.velocity = None;
+        kf
+    }
+
+    /// Pose-only optimisation of `frame` against its matched map points; sets the outlier
+    /// flags and returns the inlier count (ORB-SLAM2 `PoseOptimization`).
+    pub(crate) fn optimize_pose(&self, map: &Map, frame: &mut Frame) -> usize {
+        let Some(pose) = frame.pose else { return 0 };
+        let mut idx = Vec::new();
+        let mut points = Vec::new();
+        let mut obs = Vec::new();
+        let pyr = &map.pyramid;
+        for i in 0..frame.len() {
+            let Some(id) = frame.map_points[i] else {
+                continue;
+            };
+            let Some(p) = map.point(id) else {
+                frame.map_points[i] = None;
+                continue;
+            };
+            frame.outlier[i] = false;
+            let kp = &frame.keys_un[i];
+            let ur = frame.u_right[i];
+            idx.push(i);
+            points.push(p.position);
+            obs.push(Observation {
+                uv: [kp.x as f64, kp.y as f64],
+                u_right: (ur >= 0.0).then_some(ur as f64),
+                inv_sigma2: pyr.inv_sigma2_of(kp.octave as usize) as f64,
+                weight: frame.weights[i] as f64,
+            });
+        }
+        if idx.len() < 3 {
+            return 0;
+        }
+        let problem = PoseOnlyProblem {
+            camera: stereo_camera(&self.cam),
+            pose,
+            points,
+            observations: obs,
+        };
+        let result = dynapix_optim::optimize_pose(&problem, &self.params.pose);
+        frame.pose = Some(normalized(&result.pose));
+        for (k, &i) in idx.iter().enumerate() {
+            frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
+        }
+        if tracing::enabled!(tracing::Level::TRACE) {
+            let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
+            for (k, &i) in idx.iter().enumerate() {
+                if frame.outlier[i] { continue; }
+                let pc = transform(&result.pose, &problem.points[k]);
+                if let Some((u, v, ur)) = self.cam.project(&pc) {
+                    let o = &problem.observations[k];
+                    let lv = (frame.keys_un[i].octave as usize).min(7);
+                    per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
+                    per[lv].1 += 1;
+                    if let Some(r) = o.u_right { per[lv].2 += (ur - r).abs(); }
+                }
+            }
+            let s: Vec<String> = per.iter().map(|(e, n, r)| format!("{}:{:.2}/{:.2}", n, e / (*n).max(1) as f64, r / (*n).max(1) as f64)).collect();
+            tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
+        }
+        result.num_inliers
+    }
+
+    /// Drops outlier matches and counts inliers that are real map points.
+    fn discard_outliers(&self, map: &Map, frame: &mut Frame) -> usize {
+        let mut n = 0;
+        for i in 0..frame.len() {
+            let Some(id) = frame.map_points[i] else {
+                continue;
+            };
+            if frame.outlier[i] {
+                frame.map_points[i] = None;
+                frame.outlier[i] = false;
+            } else if map.point(id).is_some_and(|p| p.num_obs > 0) {
+                n += 1;
+            }
+        }
+        n
+    }
+
+    fn track_reference_keyframe(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        let Some(rk) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
+            return false;
+        };
+        let (matches, n) = matcher::search_keyframe_to_frame(
+            rk,
+            frame,
+            map,
+            self.params.ref_ratio,
+            true,
+            &self.params.matcher,
+        );
+        if n < self.params.ref_min_matches {
+            return false;
+        }
+        frame.map_points = matches;
+        frame.pose = self.last_frame.as_ref().and_then(|l| l.pose);
+        if frame.pose.is_none() {
+            return false;
+        }
+        self.optimize_pose(map, frame);
+        self.discard_outliers(map, frame) >= self.params.min_inliers_frame
+    }
+
+    fn track_with_motion_model(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        let (Some(v), Some(last)) = (self.velocity, self.last_frame.as_ref()) else {
+            return false;
+        };
+        let Some(lp) = last.pose else { return false };
+        frame.pose = Some(normalized(&(v * lp)));
+        frame.map_points.iter_mut().for_each(|m| *m = None);
+        let th = self.params.motion_th;
+        let mut n = matcher::search_frame_by_projection(
+            frame,
+            last,
+            map,
+            &self.cam,
+            th,
+            true,
+            &self.params.matcher,
+        );
+        if n < self.params.motion_min_matches {
+            frame.map_points.iter_mut().for_each(|m| *m = None);
+            n = matcher::search_frame_by_projection(
+                frame,
+                last,
+                map,
+                &self.cam,
+                2.0 * th,
+                true,
+                &self.params.matcher,
+            );
+        }
+        if n < self.params.motion_min_matches {
+            return false;
+        }
+        self.optimize_pose(map, frame);
+        let good = self.discard_outliers(map, frame);
+        tracing::debug!(frame = frame.id, matches = n, good, "motion model");
+        good >= self.params.min_inliers_frame
+    }
+
+    /// Local keyframes: all sharing points with the frame, plus per keyframe one new best
+    /// covisible, one child and the parent (ORB-SLAM2 `UpdateLocalKeyFrames`, without its
+    /// early `break` quirk). The reference keyframe becomes the one sharing most points.
+    fn update_local_keyframes(&mut self, map: &Map, frame: &mut Frame) {
+        let mut counter: BTreeMap<KeyFrameId, usize> = BTreeMap::new();
+        for m in frame.map_points.iter_mut() {
+            let Some(id) = *m else { continue };
+            match map.point(id) {
+                Some(p) => {
+                    for &k in p.observations.keys() {
+                        *counter.entry(k).or_insert(0) += 1;
+                    }
+                }
+                None => *m = None,
+            }
+        }
+        if counter.is_empty() {
+            return;
+        }
+        let mut best: Option<(KeyFrameId, usize)> = None;
+        let mut local: Vec<KeyFrameId> = Vec::with_capacity(counter.len() * 2);
+        let mut in_local: HashSet<KeyFrameId> = HashSet::new();
+        for (&k, &c) in &counter {
+            if map.keyframe(k).is_none() {
+                continue;
+            }
+            if best.is_none_or(|(_, bc)| c > bc) {
+                best = Some((k, c));
+            }
+            local.push(k);
+            in_local.insert(k);
+        }
+        let first_ring = local.clone();
+        for k in first_ring {
+            if local.len() > self.params.max_local_keyframes {
+                break;
+            }
+            let Some(kf) = map.keyframe(k) else { continue };
+            for n in kf.best_covisibles(10) {
+                if in_local.insert(n) {
+                    local.push(n);
+                    break;
+                }
+            }
+            for &c in &kf.children {
+                if map.keyframe(c).is_some() && in_local.insert(c) {
+                    local.push(c);
+                    break;
+                }
+            }
+            if let Some(p) = kf.parent
+                && map.keyframe(p).is_some()
+                && in_local.insert(p)
+            {
+                local.push(p);
+            }
+        }
+        self.local_kfs = local;
+        if let Some((b, _)) = best {
+            self.reference_kf = Some(b);
+            frame.reference = Some(b);
+        }
+    }
+
+    fn update_local_points(&mut self, map: &Map) {
+        let mut seen: HashSet<MapPointId> = HashSet::new();
+        self.local_points.clear();
+        for &k in &self.local_kfs {
+            let Some(kf) = map.keyframe(k) else { continue };
+            for id in kf.map_points.iter().flatten() {
+                if map.point(*id).is_some() && seen.insert(*id) {
+                    self.local_points.push(*id);
+                }
+            }
+        }
+    }
+
+    /// Frustum test (ORB-SLAM2 `Frame::isInFrustum`): projection, scale-invariance distance
+    /// and viewing angle; yields the candidate with its predicted level.
+    fn frustum(&self, map: &Map, frame: &Frame, id: MapPointId) -> Option<ProjectionCandidate> {
+        let p = map.point(id)?;
+        let pose = frame.pose?;
+        let pc = transform(&pose, &p.position);
+        let (u, v, ur) = self.cam.project(&pc)?;
+        if !frame.grid.bounds.contains(u, v) {
+            return None;
+        }
+        let center = pose.inverse().translation.vector;
+        let po = p.position - center;
+        let dist = po.norm();
+        if dist < 0.8 * p.min_distance || dist > 1.2 * p.max_distance {
+            return None;
+        }
+        let view_cos = po.dot(&p.normal) / dist;
+        if view_cos < self.params.view_cos_min {
+            return None;
+        }
+        Some(ProjectionCandidate {
+            point: id,
+            u,
+            v,
+            u_right: ur,
+            level: p.predict_scale(dist, &map.pyramid),
+            view_cos,
+        })
+    }
+
+    fn search_local_points(&mut self, map: &mut Map, frame: &mut Frame) {
+        let mut matched: HashSet<MapPointId> = HashSet::new();
+        for m in frame.map_points.iter_mut() {
+            let Some(id) = *m else { continue };
+            match map.point_mut(id) {
+                Some(p) => {
+                    p.visible += 1;
+                    matched.insert(id);
+                }
+                None => *m = None,
+            }
+        }
+        let mut cands = Vec::new();
+        for &id in &self.local_points {
+            if matched.contains(&id) {
+                continue;
+            }
+            if let Some(c) = self.frustum(map, frame, id) {
+                cands.push(c);
+            }
+        }
+        for c in &cands {
+            if let Some(p) = map.point_mut(c.point) {
+                p.visible += 1;
+            }
+        }
+        if cands.is_empty() {
+            return;
+        }
+        let th = if frame.id < self.last_reloc_frame + 2 {
+            self.params.local_th_reloc
+        } else {
+            self.params.local_th
+        };
+        matcher::search_local_by_projection(
+            frame,
+            map,
+            &cands,
+            th,
+            self.params.local_ratio,
+            &self.params.matcher,
+        );
+    }
+
+    fn track_local_map(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        self.update_local_keyframes(map, frame);
+        self.update_local_points(map);
+        self.search_local_points(map, frame);
+        self.optimize_pose(map, frame);
+        let mut inliers = 0;
+        for i in 0..frame.len() {
+            let Some(id) = frame.map_points[i] else {
+                continue;
+            };
+            if !frame.outlier[i] {
+                if let Some(p) = map.point_mut(id) {
+                    p.found += 1;
+                    if p.num_obs > 0 {
+                        inliers += 1;
+                    }
+                }
+            } else {
+                frame.map_points[i] = None;
+            }
+        }
+        self.inliers = inliers;
+        tracing::debug!(
+            frame = frame.id,
+            local_kfs = self.local_kfs.len(),
+            local_points = self.local_points.len(),
+            inliers,
+            "local map tracked"
+        );
+        if frame.id < self.last_reloc_frame + self.max_frames()
+            && inliers < self.params.local_min_inliers_reloc
+        {
+            return false;
+        }
+        inliers >= self.params.local_min_inliers
+    }
+
+    /// Keyframe decision for RGB-D with synchronous local mapping (always idle here).
+    fn need_new_keyframe(&self, map: &Map, frame: &Frame) -> bool {
+        let n_kfs = map.num_keyframes() as u64;
+        let max_frames = self.max_frames();
+        if frame.id < self.last_reloc_frame + max_frames && n_kfs > max_frames {
+            return false;
+        }
+        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let n_ref = self
+            .reference_kf
+            .map_or(0, |r| map.tracked_points(r, min_obs)) as f32;
+        let (mut tracked_close, mut untracked_close) = (0usize, 0usize);
+        for i in 0..frame.len() {
+            let d = frame.depth[i] as f64;
+            if d > 0.0 && d < self.cam.th_depth {
+                if frame.map_points[i].is_some() && !frame.outlier[i] {
+                    tracked_close += 1;
+                } else {
+                    untracked_close += 1;
+                }
+            }
+        }
+        let need_close = tracked_close < self.params.kf_close_tracked
+            && untracked_close > self.params.kf_close_untracked;
+        let th_ref = if n_kfs < 2 {
+            self.params.kf_ref_ratio_few
+        } else {
+            self.params.kf_ref_ratio
+        };
+        let inl = self.inliers as f32;
+        let idle = true;
+        let c1a = frame.id >= self.last_kf_frame + max_frames;
+        let c1b = frame.id >= self.last_kf_frame + self.params.min_frames && idle;
+        let c1c = inl < n_ref * self.params.kf_c1c_ratio || need_close;
+        let c2 = (inl < n_ref * th_ref || need_close) && self.inliers > self.params.kf_min_inliers;
+        (c1a || c1b || c1c) && c2
+    }
+
+    /// New keyframe from the frame, with map points for the close untracked keypoints
+    /// (sorted by depth; at least `kf_new_points`, all closer than `th_depth`).
+    fn create_keyframe(&mut self, map: &mut Map, frame: &mut Frame) -> Option<KeyFrameId> {
+        let pose = frame.pose?;
+        let kf = map.insert_keyframe(KeyFrame::from_frame(frame, 0, pose));
+        self.reference_kf = Some(kf);
+        frame.reference = Some(kf);
+        let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
+            .filter(|&i| frame.depth[i] > 0.0)
+            .map(|i| (frame.depth[i], i))
+            .collect();
+        by_depth.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut n_points = 0;
+        for (z, i) in by_depth {
+            let create = match frame.map_points[i] {
+                None => true,
+                Some(id) => map.point(id).is_none_or(|p| p.num_obs < 1),
+            };
+            if create {
+                frame.map_points[i] = None;
+                map.set_keyframe_match(kf, i, None);
+                if let Some(x) = frame.unproject(i, &self.cam)
+                    && let Some(id) = map.create_point(x, kf, i)
+                {
+                    frame.map_points[i] = Some(id);
+                }
+            }
+            n_points += 1;
+            if z as f64 > self.cam.th_depth && n_points > self.params.kf_new_points {
+                break;
+            }
+        }
+        self.last_kf_frame = frame.id;
+        Some(kf)
+    }
+
+    fn relocalize(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        let ok = relocalization::relocalize(self, map, frame);
+        if ok {
+            self.last_reloc_frame = frame.id;
+        }
+        ok
+    }
+}
+
+/// The optimiser's camera from the RGB-D camera.
+pub fn stereo_camera(cam: &RgbdCamera) -> StereoCamera {
+    StereoCamera {
+        fx: cam.pinhole.fx,
+        fy: cam.pinhole.fy,
+        cx: cam.pinhole.cx,
+        cy: cam.pinhole.cy,
+        bf: cam.bf,
+    }
+}
