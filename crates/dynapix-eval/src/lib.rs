@@ -1,1 +1,28 @@
-//! dynapix-eval (in progress).
+//! Trajectory evaluation for dynapix (spec §4): timestamp association like the TUM tools,
+//! ATE after Horn (or Umeyama-with-scale) alignment, RPE with a time or frame delta, the
+//! tracking rate TR with the reference missing-interval rule, ATR = mean ATE / mean TR,
+//! multi-run / multi-sequence tables (Markdown, CSV, JSON) and plots (SVG, PNG).
+//!
+//! The algorithms ([`associate`], [`ate`], [`rpe`], [`tracking`], [`aggregate`], [`report`])
+//! work on in-memory slices `&[(timestamp, camera-to-world pose)]`; [`files`] and [`plot`]
+//! are the thin file layer.
+
+pub mod aggregate;
+pub mod associate;
+pub mod ate;
+pub mod error;
+pub mod files;
+pub mod plot;
+pub mod report;
+pub mod rpe;
+pub mod stats;
+pub mod tracking;
+
+pub use aggregate::{MethodSummary, PaperTable, RunResult, SequenceSummary, paper_table};
+pub use associate::{AssocParams, associate};
+pub use ate::{AteParams, AteResult, ate};
+pub use error::{EvalError, Result};
+pub use report::{EvalParams, Evaluation, Report, evaluate};
+pub use rpe::{RpeDelta, RpeParams, RpeResult, rpe};
+pub use stats::ErrorStats;
+pub use tracking::{TrackingParams, TrackingResult, tracking_rate};

@@ -1,0 +1,334 @@
+//! Multi-run and multi-sequence aggregation (spec §4.4): every configuration runs several
+//! times; per method and sequence the mean and standard deviation over runs of ATE RMSE and
+//! TR are reported; the "Average" row is the arithmetic mean over sequences of the
+//! per-sequence means, and ATR = Average ATE / Average TR (from the Average row, not per
+//! sequence). Rendered as Markdown, CSV and JSON.
+//!
+//! Standard deviations are population values (numpy `std`, ddof 0). A run whose ATE cannot
+//! be computed (e.g. no matching stamps) is listed with its error and left out of the ATE
+//! statistics; its tracking rate still counts when available.
+
+use crate::stats::mean_std;
+use serde::Serialize;
+use std::fmt::Write as _;
+
+/// One run of one method on one sequence.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunResult {
+    /// Run name (trajectory file name).
+    pub name: String,
+    /// ATE RMSE, metres (`None` if it could not be computed).
+    pub ate_rmse_m: Option<f64>,
+    /// Matched pairs.
+    pub pairs: usize,
+    /// Tracking rate in [0, 1], when a reference was given.
+    pub tracking_rate: Option<f64>,
+    /// Missing time, seconds.
+    pub missing_time_s: Option<f64>,
+    /// Why the evaluation failed, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// Mean and standard deviation over runs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct MeanStd {
+    /// Arithmetic mean.
+    pub mean: f64,
+    /// Population standard deviation.
+    pub std: f64,
+    /// Number of values.
+    pub n: usize,
+}
+
+impl MeanStd {
+    /// `None` for an empty slice.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        mean_std(values).map(|(mean, std)| Self {
+            mean,
+            std,
+            n: values.len(),
+        })
+    }
+}
+
+/// All runs of one method on one sequence, summarised.
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodSummary {
+    /// Method name (folder name).
+    pub method: String,
+    /// ATE RMSE over successful runs, metres.
+    pub ate: Option<MeanStd>,
+    /// Tracking rate over runs with a tracking rate.
+    pub tracking_rate: Option<MeanStd>,
+    /// Runs that could not be evaluated.
+    pub failed_runs: usize,
+    /// The individual runs.
+    pub runs: Vec<RunResult>,
+}
+
+/// Summarises the runs of one method.
+pub fn summarize(method: &str, runs: Vec<RunResult>) -> MethodSummary {
+    let ates: Vec<f64> = runs.iter().filter_map(|r| r.ate_rmse_m).collect();
+    let trs: Vec<f64> = runs.iter().filter_map(|r| r.tracking_rate).collect();
+    MethodSummary {
+        method: method.to_string(),
+        ate: MeanStd::of(&ates),
+        tracking_rate: MeanStd::of(&trs),
+        failed_runs: runs.iter().filter(|r| r.error.is_some()).count(),
+        runs,
+    }
+}
+
+/// All methods on one sequence.
+#[derive(Debug, Clone, Serialize)]
+pub struct SequenceSummary {
+    /// Sequence name.
+    pub sequence: String,
+    /// One summary per method.
+    pub methods: Vec<MethodSummary>,
+}
+
+/// Per-method figures of the Average and ATR rows.
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodAverage {
+    /// Method name.
+    pub method: String,
+    /// Mean over sequences of the per-sequence ATE means (`None` if a sequence lacks one).
+    pub ate_m: Option<f64>,
+    /// Mean over sequences of the per-sequence TR means (`None` if a sequence lacks one).
+    pub tracking_rate: Option<f64>,
+    /// Average ATE / Average TR.
+    pub atr: Option<f64>,
+}
+
+/// A paper-style table: sequences × methods, plus Average and ATR rows.
+#[derive(Debug, Clone, Serialize)]
+pub struct PaperTable {
+    /// Methods in column order.
+    pub methods: Vec<String>,
+    /// Per-sequence summaries in row order.
+    pub sequences: Vec<SequenceSummary>,
+    /// Average and ATR per method, in column order.
+    pub average: Vec<MethodAverage>,
+}
+
+fn find<'a>(s: &'a SequenceSummary, method: &str) -> Option<&'a MethodSummary> {
+    s.methods.iter().find(|m| m.method == method)
+}
+
+/// Builds the table. Methods are the union over sequences, in order of first appearance.
+pub fn paper_table(sequences: Vec<SequenceSummary>) -> PaperTable {
+    let mut methods: Vec<String> = Vec::new();
+    for s in &sequences {
+        for m in &s.methods {
+            if !methods.contains(&m.method) {
+                methods.push(m.method.clone());
+            }
+        }
+    }
+    let average = methods
+        .iter()
+        .map(|name| {
+            let mean_of = |f: &dyn Fn(&MethodSummary) -> Option<MeanStd>| -> Option<f64> {
+                let v: Option<Vec<f64>> = sequences
+                    .iter()
+                    .map(|s| find(s, name).and_then(f).map(|x| x.mean))
+                    .collect();
+                v.and_then(|v| mean_std(&v)).map(|(m, _)| m)
+            };
+            let ate = mean_of(&|m| m.ate);
+            let tr = mean_of(&|m| m.tracking_rate);
+            let atr = match (ate, tr) {
+                (Some(a), Some(t)) if t > 0.0 => Some(a / t),
+                _ => None,
+            };
+            MethodAverage {
+                method: name.clone(),
+                ate_m: ate,
+                tracking_rate: tr,
+                atr,
+            }
+        })
+        .collect();
+    PaperTable {
+        methods,
+        sequences,
+        average,
+    }
+}
+
+fn cell(v: Option<MeanStd>, digits: usize) -> String {
+    match v {
+        Some(m) => format!("{:.*} ± {:.*}", digits, m.mean, digits, m.std),
+        None => "—".to_string(),
+    }
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "—".to_string(), |x| format!("{x:.digits$}"))
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+impl PaperTable {
+    /// True when any method on any sequence has a tracking rate.
+    pub fn has_tracking(&self) -> bool {
+        self.sequences
+            .iter()
+            .any(|s| s.methods.iter().any(|m| m.tracking_rate.is_some()))
+    }
+
+    /// Markdown table: one row per sequence, per method an "ATE [m]" column (and "TR" when
+    /// known), then the Average and ATR rows.
+    pub fn to_markdown(&self) -> String {
+        let tr = self.has_tracking();
+        let mut out = String::from("| Sequence |");
+        let mut sep = String::from("|---|");
+        for m in &self.methods {
+            let _ = write!(out, " {m} ATE [m] |");
+            sep.push_str("---:|");
+            if tr {
+                let _ = write!(out, " {m} TR |");
+                sep.push_str("---:|");
+            }
+        }
+        out.push('\n');
+        out.push_str(&sep);
+        out.push('\n');
+        for s in &self.sequences {
+            let _ = write!(out, "| {} |", s.sequence);
+            for m in &self.methods {
+                let ms = find(s, m);
+                let _ = write!(out, " {} |", cell(ms.and_then(|x| x.ate), 3));
+                if tr {
+                    let _ = write!(out, " {} |", cell(ms.and_then(|x| x.tracking_rate), 2));
+                }
+            }
+            out.push('\n');
+        }
+        out.push_str("| **Average** |");
+        for a in &self.average {
+            let _ = write!(out, " {} |", opt(a.ate_m, 3));
+            if tr {
+                let _ = write!(out, " {} |", opt(a.tracking_rate, 2));
+            }
+        }
+        out.push('\n');
+        if tr {
+            out.push_str("| **ATR** |");
+            for a in &self.average {
+                let _ = write!(out, " {} | |", opt(a.atr, 3));
+            }
+            out.push('\n');
+        }
+        out
+    }
+
+    /// CSV in long form: `sequence,method,ate_mean_m,ate_std_m,tr_mean,tr_std,runs,failed_runs`,
+    /// then rows with sequence `Average` and `ATR` (ATR in the `ate_mean_m` column).
+    pub fn to_csv(&self) -> String {
+        let mut out =
+            String::from("sequence,method,ate_mean_m,ate_std_m,tr_mean,tr_std,runs,failed_runs\n");
+        let num = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.6}"));
+        for s in &self.sequences {
+            for m in &s.methods {
+                let _ = writeln!(
+                    out,
+                    "{},{},{},{},{},{},{},{}",
+                    csv_field(&s.sequence),
+                    csv_field(&m.method),
+                    num(m.ate.map(|x| x.mean)),
+                    num(m.ate.map(|x| x.std)),
+                    num(m.tracking_rate.map(|x| x.mean)),
+                    num(m.tracking_rate.map(|x| x.std)),
+                    m.runs.len(),
+                    m.failed_runs
+                );
+            }
+        }
+        for a in &self.average {
+            let _ = writeln!(
+                out,
+                "Average,{},{},,{},,,",
+                csv_field(&a.method),
+                num(a.ate_m),
+                num(a.tracking_rate)
+            );
+        }
+        for a in &self.average {
+            let _ = writeln!(out, "ATR,{},{},,,,,", csv_field(&a.method), num(a.atr));
+        }
+        out
+    }
+
+    /// Pretty-printed JSON of the whole table (runs included).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(ate: f64, tr: f64) -> RunResult {
+        RunResult {
+            name: "r".into(),
+            ate_rmse_m: Some(ate),
+            pairs: 10,
+            tracking_rate: Some(tr),
+            missing_time_s: Some(0.0),
+            error: None,
+        }
+    }
+
+    #[test]
+    fn average_and_atr_follow_the_paper_definition() {
+        let s1 = SequenceSummary {
+            sequence: "a".into(),
+            methods: vec![summarize("M", vec![run(0.01, 1.0), run(0.03, 0.8)])],
+        };
+        let s2 = SequenceSummary {
+            sequence: "b".into(),
+            methods: vec![summarize("M", vec![run(0.06, 0.5)])],
+        };
+        let t = paper_table(vec![s1, s2]);
+        let m = &t.sequences[0].methods[0];
+        let ate = m.ate.expect("ate");
+        assert!((ate.mean - 0.02).abs() < 1e-15 && (ate.std - 0.01).abs() < 1e-15);
+        let a = &t.average[0];
+        // Average ATE = (0.02 + 0.06)/2, Average TR = (0.9 + 0.5)/2, ATR = 0.04/0.7.
+        assert!((a.ate_m.expect("avg") - 0.04).abs() < 1e-15);
+        assert!((a.tracking_rate.expect("avg") - 0.7).abs() < 1e-15);
+        assert!((a.atr.expect("atr") - 0.04 / 0.7).abs() < 1e-15);
+        let md = t.to_markdown();
+        assert!(md.contains("| a | 0.020 ± 0.010 | 0.90 ± 0.10 |"), "{md}");
+        assert!(md.contains("| **ATR** | 0.057 |"), "{md}");
+        let csv = t.to_csv();
+        assert!(
+            csv.contains("a,M,0.020000,0.010000,0.900000,0.100000,2,0"),
+            "{csv}"
+        );
+        assert!(csv.contains("ATR,M,0.057143"), "{csv}");
+        let json: serde_json::Value = serde_json::from_str(&t.to_json()).expect("json");
+        assert_eq!(json["average"][0]["method"], "M");
+    }
+
+    #[test]
+    fn failed_runs_are_counted_but_not_averaged() {
+        let mut bad = run(0.0, 0.2);
+        bad.ate_rmse_m = None;
+        bad.error = Some("no pairs".into());
+        let m = summarize("M", vec![run(0.05, 1.0), bad]);
+        assert_eq!(m.failed_runs, 1);
+        assert_eq!(m.ate.map(|a| a.n), Some(1));
+        assert_eq!(m.tracking_rate.map(|a| a.n), Some(2));
+    }
+}

@@ -1,0 +1,78 @@
+//! Error type of the evaluation crate.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while evaluating trajectories.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// Association produced too few pairs to align and measure.
+    #[error(
+        "only {pairs} timestamp pairs matched within {max_diff} s (need at least {needed}); \
+         check that ground truth and estimate use the same clock (TUM: Unix time) and the offset"
+    )]
+    TooFewPairs {
+        /// Pairs found.
+        pairs: usize,
+        /// Pairs needed.
+        needed: usize,
+        /// Association tolerance used, seconds.
+        max_diff: f64,
+    },
+    /// The alignment failed (degenerate geometry).
+    #[error("alignment failed: {0}")]
+    Align(#[from] dynapix_geometry::align::AlignError),
+    /// Too few reference frames inside the evaluation window for a tracking rate.
+    #[error("tracking rate needs at least 2 reference frames inside the window, got {got}")]
+    TooFewReferenceFrames {
+        /// Frames inside the window.
+        got: usize,
+    },
+    /// A parameter is outside its valid range.
+    #[error("invalid parameter {name}: {reason}")]
+    InvalidParameter {
+        /// Parameter name.
+        name: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// No RPE pairs could be formed for the given delta.
+    #[error("no relative-pose pairs for the requested delta ({0})")]
+    NoRpePairs(String),
+    /// Reading a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A trajectory or list file could not be parsed.
+    #[error("{path}:{line}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Plot rendering failed.
+    #[error("plot {path}: {reason}")]
+    Plot {
+        /// Output file.
+        path: PathBuf,
+        /// Backend message.
+        reason: String,
+    },
+    /// A runs folder has an unexpected layout.
+    #[error("{path}: {reason}")]
+    Layout {
+        /// The folder.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Result alias of the crate.
+pub type Result<T> = std::result::Result<T, EvalError>;

@@ -1,0 +1,217 @@
+//! The thin file layer of the evaluation: reading trajectories (through
+//! `dynapix_io::trajectory`), reading reference frame stamps (first column of `rgb.txt` or an
+//! association file), walking a runs folder (one sub-folder per method, one trajectory `.txt`
+//! per run, like the reference `eval.py` RESULT_DIR), and writing tables atomically.
+
+use crate::aggregate::{MethodSummary, PaperTable, RunResult, summarize};
+use crate::error::{EvalError, Result};
+use crate::report::{EvalParams, evaluate};
+use dynapix_geometry::Se3;
+use std::path::{Path, PathBuf};
+
+/// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw`, `#` comments, commas/tabs).
+pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Se3)>> {
+    let t = dynapix_io::Trajectory::read_tum(path).map_err(|e| EvalError::Parse {
+        path: path.to_path_buf(),
+        line: 0,
+        reason: e.to_string(),
+    })?;
+    Ok(t.poses.into_iter().map(|p| (p.t, p.pose)).collect())
+}
+
+/// Reads reference frame stamps: the first field of every non-empty, non-`#` line
+/// (`rgb.txt`, `depth.txt`, a 4-column association file, or a trajectory).
+pub fn read_reference_stamps(path: &Path) -> Result<Vec<f64>> {
+    let text = std::fs::read_to_string(path).map_err(|source| EvalError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_reference_stamps(&text, path)
+}
+
+/// Parses reference stamps from text; `path` is used in error messages only.
+pub fn parse_reference_stamps(text: &str, path: &Path) -> Result<Vec<f64>> {
+    let mut out = Vec::new();
+    for (k, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let first = line
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .find(|s| !s.is_empty())
+            .unwrap_or("");
+        let t: f64 = first.parse().map_err(|_| EvalError::Parse {
+            path: path.to_path_buf(),
+            line: k + 1,
+            reason: format!("expected a timestamp in the first column, got {first:?}"),
+        })?;
+        if !t.is_finite() {
+            return Err(EvalError::Parse {
+                path: path.to_path_buf(),
+                line: k + 1,
+                reason: format!("timestamp {first:?} is not finite"),
+            });
+        }
+        out.push(t);
+    }
+    Ok(out)
+}
+
+fn list_dir(dir: &Path) -> Result<Vec<PathBuf>> {
+    let rd = std::fs::read_dir(dir).map_err(|source| EvalError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut v = Vec::new();
+    for e in rd {
+        let e = e.map_err(|source| EvalError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        v.push(e.path());
+    }
+    // Sorted by name, so the run order (and every table) is reproducible.
+    v.sort();
+    Ok(v)
+}
+
+fn txt_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    Ok(list_dir(dir)?
+        .into_iter()
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "txt"))
+        .collect())
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Evaluates one trajectory file into a [`RunResult`]; errors are recorded, not returned.
+pub fn evaluate_run_file(
+    gt: &[(f64, Se3)],
+    est_path: &Path,
+    reference: Option<&[f64]>,
+    params: &EvalParams,
+) -> RunResult {
+    let name = file_name(est_path);
+    let failed = |e: EvalError, tr: Option<(f64, f64)>| RunResult {
+        name: name.clone(),
+        ate_rmse_m: None,
+        pairs: 0,
+        tracking_rate: tr.map(|x| x.0),
+        missing_time_s: tr.map(|x| x.1),
+        error: Some(e.to_string()),
+    };
+    let est = match read_trajectory(est_path) {
+        Ok(e) => e,
+        Err(e) => return failed(e, None),
+    };
+    match evaluate(gt, &est, reference, params) {
+        Ok(ev) => RunResult {
+            name: name.clone(),
+            ate_rmse_m: Some(ev.ate.stats.rmse),
+            pairs: ev.ate.stats.count,
+            tracking_rate: ev.tracking.map(|t| t.tracking_rate),
+            missing_time_s: ev.tracking.map(|t| t.missing_time_s),
+            error: None,
+        },
+        Err(e) => {
+            // ATE failed (e.g. no overlapping stamps): the tracking rate is still meaningful.
+            let tr = reference.and_then(|r| {
+                let est_t: Vec<f64> = est.iter().map(|p| p.0).collect();
+                let tp = crate::tracking::TrackingParams {
+                    window: crate::report::tracking_window(gt, params),
+                    ..params.tracking.clone()
+                };
+                crate::tracking::tracking_rate(r, &est_t, &tp)
+                    .ok()
+                    .map(|t| (t.tracking_rate, t.missing_time_s))
+            });
+            failed(e, tr)
+        }
+    }
+}
+
+/// Evaluates a runs folder: each sub-folder is a method and each `.txt` in it one run. A
+/// folder that holds `.txt` files directly (no sub-folders) is one method named after it.
+/// Methods and runs are taken in name order.
+pub fn evaluate_runs_dir(
+    gt: &[(f64, Se3)],
+    runs_dir: &Path,
+    reference: Option<&[f64]>,
+    params: &EvalParams,
+    mut progress: impl FnMut(&Path),
+) -> Result<Vec<MethodSummary>> {
+    let entries = list_dir(runs_dir)?;
+    let subdirs: Vec<PathBuf> = entries.iter().filter(|p| p.is_dir()).cloned().collect();
+    let methods: Vec<(String, PathBuf)> = if subdirs.is_empty() {
+        vec![(file_name(runs_dir), runs_dir.to_path_buf())]
+    } else {
+        subdirs.into_iter().map(|p| (file_name(&p), p)).collect()
+    };
+    let mut out = Vec::new();
+    for (name, dir) in methods {
+        let files = txt_files(&dir)?;
+        if files.is_empty() {
+            continue;
+        }
+        let runs = files
+            .iter()
+            .map(|f| {
+                progress(f);
+                evaluate_run_file(gt, f, reference, params)
+            })
+            .collect();
+        out.push(summarize(&name, runs));
+    }
+    if out.is_empty() {
+        return Err(EvalError::Layout {
+            path: runs_dir.to_path_buf(),
+            reason: "no trajectories found: expected <method>/<run>.txt files".into(),
+        });
+    }
+    Ok(out)
+}
+
+/// Writes `table.md`, `table.csv` and `table.json` into `dir` (created if needed),
+/// atomically. Returns the written paths.
+pub fn write_table(dir: &Path, table: &PaperTable) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut written = Vec::new();
+    for (name, text) in [
+        ("table.md", table.to_markdown()),
+        ("table.csv", table.to_csv()),
+        ("table.json", table.to_json()),
+    ] {
+        let p = dir.join(name);
+        dynapix_io::write_atomic(&p, text.as_bytes()).map_err(|e| EvalError::Parse {
+            path: p.clone(),
+            line: 0,
+            reason: e.to_string(),
+        })?;
+        written.push(p);
+    }
+    Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_stamps_from_association_and_bad_line() {
+        let text = "# comment\n1305031102.175304 rgb/1305031102.175304.png 1305031102.160407 depth/x.png\n\n1305031102.211214,rgb/a.png\n";
+        let v = parse_reference_stamps(text, Path::new("assoc.txt")).expect("parses");
+        assert_eq!(v, vec![1305031102.175304, 1305031102.211214]);
+        let err = parse_reference_stamps("1.0 a\nrgb/2.png 2.0\n", Path::new("assoc.txt"))
+            .expect_err("bad line");
+        let msg = err.to_string();
+        assert!(msg.contains("assoc.txt:2"), "{msg}");
+    }
+}
