@@ -803,3 +803,165 @@ mod tests {
         assert_eq!(f.rgb, f.background);
     }
 }
+
+/// Checks that the rendered images suit ORB: FAST corners (threshold 20, as ORB-SLAM2's
+/// `iniThFAST`) spread over the image, and re-detected in the next frame where the ground
+/// truth flow says they went (no texture shimmer).
+#[cfg(test)]
+mod orb_suitability {
+    use super::*;
+
+    const CIRCLE: [(i32, i32); 16] = [
+        (0, -3),
+        (1, -3),
+        (2, -2),
+        (3, -1),
+        (3, 0),
+        (3, 1),
+        (2, 2),
+        (1, 3),
+        (0, 3),
+        (-1, 3),
+        (-2, 2),
+        (-3, 1),
+        (-3, 0),
+        (-3, -1),
+        (-2, -2),
+        (-1, -3),
+    ];
+
+    fn grey(img: &RgbImage) -> Vec<i32> {
+        img.pixels()
+            .map(|p| ((p[0] as i32 * 299 + p[1] as i32 * 587 + p[2] as i32 * 114 + 500) / 1000))
+            .collect()
+    }
+
+    /// FAST-9 corners with 3×3 non-maximum suppression on a simple score.
+    fn fast(g: &[i32], w: usize, h: usize, th: i32) -> Vec<(usize, usize)> {
+        let mut score = vec![0i32; w * h];
+        for y in 3..h - 3 {
+            for x in 3..w - 3 {
+                let c = g[y * w + x];
+                let ring: Vec<i32> = CIRCLE
+                    .iter()
+                    .map(|&(dx, dy)| g[(y as i32 + dy) as usize * w + (x as i32 + dx) as usize])
+                    .collect();
+                let mut best = 0;
+                for sign in [1, -1] {
+                    let mut run = 0;
+                    let mut s = 0;
+                    for k in 0..32 {
+                        let d = sign * (ring[k % 16] - c);
+                        if d > th {
+                            run += 1;
+                            s += d - th;
+                            if run >= 9 {
+                                best = best.max(s);
+                            }
+                        } else {
+                            run = 0;
+                            s = 0;
+                        }
+                    }
+                }
+                score[y * w + x] = best;
+            }
+        }
+        let mut out = Vec::new();
+        for y in 4..h - 4 {
+            for x in 4..w - 4 {
+                let s = score[y * w + x];
+                if s == 0 {
+                    continue;
+                }
+                let mut is_max = true;
+                for dy in -1i32..=1 {
+                    for dx in -1i32..=1 {
+                        let n = score[(y as i32 + dy) as usize * w + (x as i32 + dx) as usize];
+                        if (dx, dy) != (0, 0)
+                            && (n > s || (n == s && (dy < 0 || (dy == 0 && dx < 0))))
+                        {
+                            is_max = false;
+                        }
+                    }
+                }
+                if is_max {
+                    out.push((x, y));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn fast_corners_are_spread_and_repeatable() {
+        for preset in [Preset::WalkingXyz, Preset::Sitting] {
+            let params = SynthParams {
+                preset,
+                frames: 40,
+                seed: 1,
+                sensor: SensorParams::default(),
+                ..SynthParams::default()
+            };
+            let seq = Sequence::new(params).expect("sequence");
+            let (w, h) = (640usize, 480usize);
+            let i = 30;
+            let (f0, flow) = seq.frame(i, Some(1));
+            let flow = flow.expect("flow");
+            let (f1, _) = seq.frame(i + 1, None);
+            let c0 = fast(&grey(&f0.background), w, h, 20);
+            let c1 = fast(&grey(&f1.background), w, h, 20);
+            // Spread: corners in most cells of an 8×6 grid.
+            let mut cells = [false; 48];
+            for &(x, y) in &c0 {
+                cells[(y * 6 / h) * 8 + x * 8 / w] = true;
+            }
+            let covered = cells.iter().filter(|&&c| c).count();
+            // Repeatability: a corner of frame i re-detected within 1.5 px of its flow target.
+            let mut grid = vec![false; w * h];
+            for &(x, y) in &c1 {
+                grid[y * w + x] = true;
+            }
+            let mut found = 0;
+            let mut tried = 0;
+            for &(x, y) in &c0 {
+                if f0.mask.as_raw()[y * w + x] != 0 {
+                    continue;
+                }
+                let [u, v] = flow.data[y * w + x];
+                let (tx, ty) = (x as f32 + u, y as f32 + v);
+                if !(5.0..w as f32 - 5.0).contains(&tx) || !(5.0..h as f32 - 5.0).contains(&ty) {
+                    continue;
+                }
+                tried += 1;
+                let hit = (-1i32..=1).any(|dy| {
+                    (-1i32..=1).any(|dx| {
+                        let (px, py) = (
+                            (tx.round() as i32 + dx) as usize,
+                            (ty.round() as i32 + dy) as usize,
+                        );
+                        grid[py * w + px]
+                    })
+                });
+                if hit {
+                    found += 1;
+                }
+            }
+            let rep = found as f64 / tried.max(1) as f64;
+            eprintln!(
+                "{preset:?}: {} corners, {covered}/48 cells, repeatability {rep:.2} ({found}/{tried})",
+                c0.len()
+            );
+            assert!(
+                c0.len() > 1000,
+                "{preset:?}: only {} FAST corners",
+                c0.len()
+            );
+            assert!(
+                covered >= 40,
+                "{preset:?}: corners in only {covered}/48 cells"
+            );
+            assert!(rep > 0.6, "{preset:?}: repeatability {rep}");
+        }
+    }
+}
