@@ -261,7 +261,13 @@ pub fn search_frame_by_projection(
             }
         }
     }
-    tracing::debug!(frame = cur.id, last_matched = last.map_points.iter().flatten().count(), before, after = n, "frame projection");
+    tracing::debug!(
+        frame = cur.id,
+        last_matched = last.map_points.iter().flatten().count(),
+        before,
+        after = n,
+        "frame projection"
+    );
     n
 }
 

@@ -441,7 +441,7 @@ pub fn rgb_to_gray_orbslam(img: &RgbImage) -> GrayImage {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 #[cfg(test)]
 mod round_tests {

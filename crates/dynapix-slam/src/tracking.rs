@@ -393,17 +393,31 @@ impl Tracker {
         if tracing::enabled!(tracing::Level::TRACE) {
             let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
             for (k, &i) in idx.iter().enumerate() {
-                if frame.outlier[i] { continue; }
+                if frame.outlier[i] {
+                    continue;
+                }
                 let pc = transform(&result.pose, &problem.points[k]);
                 if let Some((u, v, ur)) = self.cam.project(&pc) {
                     let o = &problem.observations[k];
                     let lv = (frame.keys_un[i].octave as usize).min(7);
                     per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
                     per[lv].1 += 1;
-                    if let Some(r) = o.u_right { per[lv].2 += (ur - r).abs(); }
+                    if let Some(r) = o.u_right {
+                        per[lv].2 += (ur - r).abs();
+                    }
                 }
             }
-            let s: Vec<String> = per.iter().map(|(e, n, r)| format!("{}:{:.2}/{:.2}", n, e / (*n).max(1) as f64, r / (*n).max(1) as f64)).collect();
+            let s: Vec<String> = per
+                .iter()
+                .map(|(e, n, r)| {
+                    format!(
+                        "{}:{:.2}/{:.2}",
+                        n,
+                        e / (*n).max(1) as f64,
+                        r / (*n).max(1) as f64
+                    )
+                })
+                .collect();
             tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
         }
         result.num_inliers

@@ -199,6 +199,14 @@ impl FeatureVector {
     }
 }
 
+/// The default vocabulary shipped with the repository (`assets/vocab/`, provenance in
+/// `assets/vocab/PROVENANCE.md`): k = 10, L = 4, trained with `dynapix vocab train` on the 300
+/// RGB frames of TUM RGB-D fr1/xyz (CC BY 4.0).
+static EMBEDDED_DEFAULT: &[u8] = include_bytes!(concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../assets/vocab/fr1_xyz_k10_l4.dpxvoc"
+));
+
 /// Levels above the leaves at which ORB-SLAM2 groups features (`levelsup = 4`).
 pub const DEFAULT_LEVELS_UP: usize = 4;
 
@@ -301,6 +309,12 @@ impl Vocabulary {
             word_of_node,
             node_of_word,
         })
+    }
+
+    /// The default vocabulary compiled into the binary (see `assets/vocab/PROVENANCE.md`).
+    /// Parsing takes a few milliseconds; the only possible error is a corrupt build.
+    pub fn embedded_default() -> Result<Self, VocabError> {
+        Self::from_bytes(EMBEDDED_DEFAULT)
     }
 
     /// Branching factor k the vocabulary was built with.

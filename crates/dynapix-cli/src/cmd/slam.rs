@@ -9,8 +9,10 @@ use anyhow::{Context, bail};
 use dynapix_geometry::PinholeCamera;
 use dynapix_io::images::read_rgbd;
 use dynapix_io::trajectory::write_status;
-use dynapix_io::tum::{DEFAULT_MAX_DIFF, associate_lists, read_associations, read_list, resolve_path};
-use dynapix_io::{Association, FrameStatus, StampedPose, StampedStatus, Trajectory};
+use dynapix_io::tum::{
+    DEFAULT_MAX_DIFF, associate_lists, read_associations, read_list, resolve_path,
+};
+use dynapix_io::{Association, FrameStatus, ListEntry, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
@@ -53,9 +55,14 @@ pub struct Args {
     #[arg(long)]
     pub settings: Option<PathBuf>,
     /// Association file (4 columns); default: association.txt / associations.txt /
-    /// rgbd_assoc.txt in the folder, else rgb.txt and depth.txt associated within 0.02 s.
+    /// rgbd_assoc.txt in the folder, else every rgb.txt frame with its nearest depth.txt image
+    /// within 0.02 s.
     #[arg(long)]
     pub association: Option<PathBuf>,
+    /// Pair rgb and depth one-to-one like `associate.py` (drops rgb frames whose nearest depth
+    /// went to a neighbour) instead of giving every rgb frame its nearest depth.
+    #[arg(long)]
+    pub unique_association: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -216,7 +223,11 @@ fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
         None => {
             let rgb = read_list(dir.join("rgb.txt"))?;
             let depth = read_list(dir.join("depth.txt"))?;
-            associate_lists(&rgb, &depth, 0.0, DEFAULT_MAX_DIFF)
+            if args.unique_association {
+                associate_lists(&rgb, &depth, 0.0, DEFAULT_MAX_DIFF)
+            } else {
+                nearest_depth(&rgb, &depth, DEFAULT_MAX_DIFF)
+            }
         }
     };
     if let Some(m) = args.max_frames {
@@ -226,6 +237,25 @@ fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
         bail!("{}: no rgb/depth pairs found", dir.display());
     }
     Ok(frames)
+}
+
+/// Every rgb frame with the depth image nearest in time (within `max_diff`; a depth image may
+/// serve two rgb frames), so no rgb frame is skipped and the tracking rate is measured against
+/// the full rgb list. `associate.py`'s one-to-one pairing drops a few frames instead.
+fn nearest_depth(rgb: &[ListEntry], depth: &[ListEntry], max_diff: f64) -> Vec<Association> {
+    rgb.iter()
+        .filter_map(|r| {
+            let d = depth
+                .iter()
+                .min_by(|a, b| (a.t - r.t).abs().total_cmp(&(b.t - r.t).abs()))?;
+            ((d.t - r.t).abs() < max_diff).then(|| Association {
+                t_rgb: r.t,
+                rgb: r.path.clone(),
+                t_depth: d.t,
+                depth: d.path.clone(),
+            })
+        })
+        .collect()
 }
 
 struct Orb(OrbExtractor);
@@ -270,7 +300,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let extractor = OrbExtractor::new(settings.orb.clone()).context("bad ORB settings")?;
-    let mut system = System::new(Orb(extractor), settings.camera.clone(), SystemParams::default());
+    let mut system = System::new(
+        Orb(extractor),
+        settings.camera.clone(),
+        SystemParams::default(),
+    );
 
     // Images are decoded on a helper thread, a few frames ahead of tracking.
     let (tx, rx) = sync_channel(4);
@@ -296,7 +330,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut status = Vec::with_capacity(frames.len());
-    let mut timing = String::from("index,timestamp,extract_ms,track_ms,mapping_ms,keyframe,state\n");
+    let mut timing =
+        String::from("index,timestamp,extract_ms,track_ms,mapping_ms,keyframe,state\n");
     let (mut t_track, mut t_total) = (Vec::new(), Vec::new());
     for (t, r) in rx {
         let (rgb, depth) = r?;

@@ -234,3 +234,43 @@ fn save_and_load_files() {
         Err(VocabError::Io { .. })
     ));
 }
+
+#[test]
+fn embedded_default_loads_and_ranks_neighbours_higher() {
+    let t = std::time::Instant::now();
+    let v = Vocabulary::embedded_default().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!(
+        "embedded default: {} nodes, {} words, parsed in {:?}",
+        v.node_count(),
+        v.word_count(),
+        t.elapsed()
+    );
+    assert_eq!((v.branching(), v.levels()), (10, 4));
+    assert!(v.word_count() > 5000);
+    let Some(f0) = crate::orb::tests::fr1_xyz_frame(100) else {
+        return;
+    };
+    let Some(f1) = crate::orb::tests::fr1_xyz_frame(101) else {
+        return;
+    };
+    let Some(far) = crate::orb::tests::fr1_xyz_frame(290) else {
+        return;
+    };
+    let orb = crate::orb::OrbExtractor::default();
+    let (_, d0) = orb.extract(&f0);
+    let (_, d1) = orb.extract(&f1);
+    let (_, d2) = orb.extract(&far);
+    let (b0, fv0) = v.transform(&d0);
+    let (b1, _) = v.transform(&d1);
+    let (b2, _) = v.transform(&d2);
+    let sum: f64 = b0.iter().map(|p| p.1).sum();
+    assert!((sum - 1.0).abs() < 1e-9, "{sum}");
+    assert!(b0.iter().all(|p| p.1 > 0.0));
+    // Every kept feature is in exactly one group, groups are depth-1 nodes here (L − 4 → 1).
+    let grouped: usize = fv0.iter().map(|g| g.1.len()).sum();
+    assert!(grouped > d0.len() / 2 && grouped <= d0.len());
+    assert!(fv0.iter().all(|g| v.node_depth(g.0) == Some(1)));
+    let (near, distant) = (v.score(&b0, &b1), v.score(&b0, &b2));
+    eprintln!("score neighbour {near:.4}, distant {distant:.4}");
+    assert!(near > distant, "neighbour {near} vs distant {distant}");
+}
