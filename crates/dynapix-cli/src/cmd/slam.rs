@@ -341,6 +341,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             gray: &gray,
             depth: &depth,
             weights: None,
+            masks: None,
         });
         let st = match res.state {
             TrackingState::Ok => FrameStatus::Tracked,
