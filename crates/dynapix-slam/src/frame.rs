@@ -10,6 +10,7 @@ use nalgebra::{Point3, Vector3};
 
 use crate::features::{Descriptor, KeyPoint};
 use crate::map::{KeyFrameId, MapPointId};
+use crate::vocab::Vocabulary;
 
 /// Depth image in metres (0 = no measurement).
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -29,6 +30,23 @@ pub fn normalized(t: &Se3) -> Se3 {
     Se3::from_parts(
         t.translation,
         nalgebra::UnitQuaternion::new_normalize(t.rotation.into_inner()),
+    )
+}
+
+/// BoW vector `(word, weight)` and feature vector `node → keypoint indices` grouped at tree
+/// depth `group_depth` (2 ≈ ORB-SLAM2's `levels_up = 4` on its 6-level vocabulary).
+pub fn bow_vectors(
+    vocab: &Vocabulary,
+    descs: &[Descriptor],
+    group_depth: usize,
+) -> (Vec<(u32, f64)>, Vec<(u32, Vec<u32>)>) {
+    let levels_up = vocab.levels().saturating_sub(group_depth);
+    let (bow, feat) = vocab.transform_with_levels_up(descs, levels_up);
+    (
+        bow.as_slice().to_vec(),
+        feat.iter()
+            .map(|(n, v)| (*n, v.iter().map(|&i| i as u32).collect()))
+            .collect(),
     )
 }
 
@@ -463,6 +481,13 @@ impl Frame {
     /// True when the frame has no keypoints.
     pub fn is_empty(&self) -> bool {
         self.keys_un.is_empty()
+    }
+
+    /// Computes the bag-of-words and feature vectors once (no-op when already done).
+    pub fn compute_bow(&mut self, vocab: &Vocabulary, group_depth: usize) {
+        if self.bow.is_empty() && !self.descriptors.is_empty() {
+            (self.bow, self.feat) = bow_vectors(vocab, &self.descriptors, group_depth);
+        }
     }
 
     /// Camera centre in world coordinates (None before the pose is set).

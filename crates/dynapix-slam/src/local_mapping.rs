@@ -9,10 +9,11 @@ use crate::dynapix::{BirthSource, may_birth_in_keyframe};
 use dynapix_optim::{BaEdge, BaParams, BaProblem, Observation};
 use nalgebra::{Matrix4, Vector3};
 
-use crate::frame::{RgbdCamera, transform};
+use crate::frame::{RgbdCamera, bow_vectors, transform};
 use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams};
 use crate::tracking::stereo_camera;
+use crate::vocab::Vocabulary;
 
 /// Local-mapping parameters (ORB-SLAM2 RGB-D defaults).
 #[derive(Clone, Debug, PartialEq)]
@@ -45,6 +46,8 @@ pub struct LocalMappingParams {
     pub kf_redundancy: f32,
     /// Keyframe culling: other keyframes that must see a point (3).
     pub kf_cull_observers: usize,
+    /// Vocabulary tree depth at which features are grouped for BoW matching (2).
+    pub bow_group_depth: usize,
     /// Bundle adjustment parameters.
     pub ba: BaParams,
     /// Matcher thresholds.
@@ -68,6 +71,7 @@ impl Default for LocalMappingParams {
             ba_min_keyframes: 2,
             kf_redundancy: 0.9,
             kf_cull_observers: 3,
+            bow_group_depth: 2,
             ba: BaParams::default(),
             matcher: MatcherParams::default(),
         }
@@ -113,8 +117,19 @@ impl LocalMapper {
     }
 
     /// Runs all local-mapping steps on keyframe `kf`.
-    pub fn process(&mut self, map: &mut Map, kf: KeyFrameId) -> MappingStats {
+    pub fn process(
+        &mut self,
+        map: &mut Map,
+        kf: KeyFrameId,
+        vocab: Option<&Vocabulary>,
+    ) -> MappingStats {
         let mut stats = MappingStats::default();
+        if let Some(v) = vocab
+            && let Some(k) = map.keyframe_mut(kf)
+            && k.bow.is_empty()
+        {
+            (k.bow, k.feat) = bow_vectors(v, &k.descriptors, self.params.bow_group_depth);
+        }
         self.insert_keyframe(map, kf);
         stats.culled_points = self.cull_points(map, kf);
         stats.new_points = self.triangulate(map, kf);

@@ -14,6 +14,7 @@ use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid, Wei
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::map::{KeyFrameId, Map, MapParams};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
+use crate::vocab::Vocabulary;
 
 /// Produces keypoints (level-0 image coordinates) and descriptors from a grey image.
 pub trait FeatureExtractor {
@@ -116,6 +117,7 @@ pub struct System<E> {
     mapper: LocalMapper,
     records: Vec<Record>,
     next_index: u64,
+    vocab: Option<Vocabulary>,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -131,7 +133,15 @@ impl<E: FeatureExtractor> System<E> {
             cam,
             records: Vec::new(),
             next_index: 0,
+            vocab: None,
         }
+    }
+
+    /// Uses `vocab` for bag-of-words matching and relocalisation candidates (without one,
+    /// keyframe matching is brute force and relocalisation tries the most recent keyframes).
+    pub fn with_vocabulary(mut self, vocab: Vocabulary) -> Self {
+        self.vocab = Some(vocab);
+        self
     }
 
     /// The map.
@@ -170,11 +180,13 @@ impl<E: FeatureExtractor> System<E> {
             crate::dynapix::apply_class_mask(&mut frame, m);
         }
         let num_keypoints = frame.len();
-        let out = self.tracker.track(&mut self.map, frame);
+        let out = self
+            .tracker
+            .track(&mut self.map, frame, self.vocab.as_ref());
         let t2 = Instant::now();
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
-            mapping = Some(self.mapper.process(&mut self.map, kf));
+            mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
         }
         let t3 = Instant::now();
         let mut reset = false;

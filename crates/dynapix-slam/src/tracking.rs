@@ -14,6 +14,7 @@ use crate::dynapix::{BirthSource, may_birth_in_frame};
 use crate::frame::{Frame, RgbdCamera, normalized, transform};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams, ProjectionCandidate};
+use crate::vocab::Vocabulary;
 
 pub use relocalization::RelocParams;
 
@@ -73,6 +74,8 @@ pub struct TrackingParams {
     pub min_frames: u64,
     /// Close points a new keyframe creates at least (100).
     pub kf_new_points: usize,
+    /// Vocabulary tree depth at which features are grouped for BoW matching (2).
+    pub bow_group_depth: usize,
     /// Reset the map when lost with at most this many keyframes (5).
     pub reset_max_keyframes: usize,
     /// Pose-only optimisation.
@@ -108,6 +111,7 @@ impl Default for TrackingParams {
             min_frames: 0,
             kf_new_points: 100,
             reset_max_keyframes: 5,
+            bow_group_depth: 2,
             pose: PoseOnlyParams::default(),
             matcher: MatcherParams::default(),
             reloc: RelocParams::default(),
@@ -192,7 +196,12 @@ impl Tracker {
 
     /// Tracks one frame: initialises, tracks or relocalises, then decides on a keyframe
     /// (ORB-SLAM2 `Tracking::Track`).
-    pub fn track(&mut self, map: &mut Map, mut frame: Frame) -> TrackOutcome {
+    pub fn track(
+        &mut self,
+        map: &mut Map,
+        mut frame: Frame,
+        vocab: Option<&Vocabulary>,
+    ) -> TrackOutcome {
         let mut out = TrackOutcome {
             state: self.state,
             pose: None,
@@ -221,14 +230,17 @@ impl Tracker {
         if self.state == TrackingState::Ok {
             let just_relocalised = frame.id < self.last_reloc_frame + 2;
             if self.velocity.is_none() || just_relocalised {
-                ok = self.track_reference_keyframe(map, &mut frame);
+                ok = self.track_reference_keyframe(map, &mut frame, vocab);
             } else {
                 ok = self.track_with_motion_model(map, &mut frame);
                 if !ok {
-                    ok = self.track_reference_keyframe(map, &mut frame);
+                    ok = self.track_reference_keyframe(map, &mut frame, vocab);
                 }
             }
         } else {
+            if let Some(v) = vocab {
+                frame.compute_bow(v, self.params.bow_group_depth);
+            }
             ok = self.relocalize(map, &mut frame);
             out.relocalised = ok;
         }
@@ -442,7 +454,15 @@ impl Tracker {
         n
     }
 
-    fn track_reference_keyframe(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+    fn track_reference_keyframe(
+        &mut self,
+        map: &mut Map,
+        frame: &mut Frame,
+        vocab: Option<&Vocabulary>,
+    ) -> bool {
+        if let Some(v) = vocab {
+            frame.compute_bow(v, self.params.bow_group_depth);
+        }
         let Some(rk) = self.reference_kf.and_then(|r| map.keyframe(r)) else {
             return false;
         };

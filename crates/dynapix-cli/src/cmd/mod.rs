@@ -1,10 +1,10 @@
 //! Subcommands, one module each.
+pub mod demo;
 pub mod eval;
+pub mod experiment;
 pub mod flow;
 pub mod motion;
+pub mod run;
 pub mod slam;
 pub mod synth;
 pub mod vocab;
-pub mod run;
-pub mod experiment;
-pub mod demo;

@@ -18,6 +18,7 @@ use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FeatureExtractor, FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
+use dynapix_slam::vocab::Vocabulary;
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// SLAM mode.
@@ -63,6 +64,12 @@ pub struct Args {
     /// went to a neighbour) instead of giving every rgb frame its nearest depth.
     #[arg(long)]
     pub unique_association: bool,
+    /// Bag-of-words vocabulary (`dynapix vocab` binary format); default: the embedded one.
+    #[arg(long, conflicts_with = "no_vocabulary")]
+    pub vocabulary: Option<PathBuf>,
+    /// Run without a vocabulary (brute-force keyframe matching).
+    #[arg(long)]
+    pub no_vocabulary: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -305,6 +312,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         settings.camera.clone(),
         SystemParams::default(),
     );
+    if !args.no_vocabulary {
+        let vocab = match &args.vocabulary {
+            Some(p) => Vocabulary::load(p)
+                .with_context(|| format!("cannot load vocabulary {}", p.display()))?,
+            None => Vocabulary::embedded_default().context("embedded vocabulary")?,
+        };
+        system = system.with_vocabulary(vocab);
+    }
 
     // Images are decoded on a helper thread, a few frames ahead of tracking.
     let (tx, rx) = sync_channel(4);
