@@ -563,6 +563,15 @@ pub fn evaluate(
     )))
 }
 
+/// Writes the trajectory top view and the ATE over time of `traj` into `dir`.
+fn plots(seq_dir: &Path, traj: &Path, dir: &Path) -> anyhow::Result<()> {
+    let gt = dynapix_eval::files::read_trajectory(&seq_dir.join("groundtruth.txt"))?;
+    let est = dynapix_eval::files::read_trajectory(traj)?;
+    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default())?;
+    dynapix_eval::plot::write_plots(dir, &ev.ate)?;
+    Ok(())
+}
+
 /// Runs `args` and returns what it produced (shared by `experiment` and `demo`).
 pub fn execute(args: &Args) -> anyhow::Result<RunOutcome> {
     if args.runs == 0 {
@@ -648,6 +657,11 @@ pub fn execute(args: &Args) -> anyhow::Result<RunOutcome> {
             std::fs::copy(&traj, &outcome.trajectory)?;
         }
         let ev = evaluate(&args.seq_dir, &traj, &stamps)?;
+        if ev.as_ref().is_some_and(|r| r.ate_rmse_m.is_some())
+            && let Err(e) = plots(&args.seq_dir, &traj, &dir)
+        {
+            tracing::warn!("plots of {}: {e:#}", dir.display());
+        }
         if let Some(r) = &ev {
             stats["ate_rmse_m"] = json!(r.ate_rmse_m);
             stats["tracking_rate"] = json!(r.tracking_rate);
