@@ -71,7 +71,7 @@ impl Method {
     }
 
     /// Which motion terms the method's probability maps use (`None`: no maps).
-    fn terms(self) -> Option<&'static str> {
+    pub(crate) fn terms(self) -> Option<&'static str> {
         match self {
             Method::Orbslam2 => None,
             Method::NoMovable => Some("no-movable"),
@@ -522,6 +522,15 @@ fn ensure_prob(
     }
     record["prob"] = info;
     Ok(prob)
+}
+
+/// Computes (or finds) the probability maps `args.method` needs, without running SLAM.
+pub fn prepare_prob(args: &Args) -> anyhow::Result<Option<PathBuf>> {
+    let mut record = json!({});
+    args.method
+        .terms()
+        .map(|t| ensure_prob(args, t, &mut record))
+        .transpose()
 }
 
 fn dynapix_params(args: &Args) -> DynaPixParams {
