@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long, default_value = "dynapix-demo")]
     pub out: PathBuf,
     /// Frames per sequence (30 Hz).
-    #[arg(long, default_value_t = 150)]
+    #[arg(long, default_value_t = 200)]
     pub frames: usize,
     /// Image width (intrinsics scale with it).
     #[arg(long, default_value_t = 320)]

@@ -48,6 +48,10 @@ pub struct Args {
     /// Per-map-point probability update.
     #[arg(long, value_enum, default_value = "ema")]
     pub update: run::UpdateArg,
+    /// Motion-map cache root (default: `dynapix_cache` inside each sequence; needed for
+    /// read-only sequence folders): maps go to `<cache>/<sequence name>/`.
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
     /// Process at most this many frames per sequence.
     #[arg(long)]
     pub max_frames: Option<usize>,
@@ -74,7 +78,7 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         ema_alpha: 0.5,
         gamma_add: 0.05,
         gamma_del: 0.1,
-        cache: None,
+        cache: a.cache.as_ref().map(|c| c.join(seq_name(seq))),
         recompute_prob: false,
         flow_preset: a.flow_preset.clone(),
         max_frames: a.max_frames,
