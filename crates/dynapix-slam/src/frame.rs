@@ -377,6 +377,8 @@ pub struct Frame {
     pub u_right: Vec<f32>,
     /// DynaPix weight w = 1 − P per keypoint (1.0 for ORB-SLAM2).
     pub weights: Vec<f32>,
+    /// Keypoint lies on a semantically dynamic class (DynaPix+ masks; gates map-point birth).
+    pub dynamic_class: Vec<bool>,
     /// Map point matched to each keypoint.
     pub map_points: Vec<Option<MapPointId>>,
     /// Outlier flag of each match after pose optimisation.
@@ -465,6 +467,7 @@ impl Frame {
             depth: depth_v,
             u_right: ur,
             weights: ww,
+            dynamic_class: vec![false; n],
             map_points: vec![None; n],
             outlier: vec![false; n],
             grid,

@@ -2,6 +2,7 @@
 //! bag-of-words vocabulary, frames, the map, tracking and local mapping.
 //! No file access: inputs are images and parameters, outputs are poses and the map.
 
+pub mod dynapix;
 pub mod features;
 pub mod frame;
 pub mod local_mapping;

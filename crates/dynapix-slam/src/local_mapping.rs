@@ -5,6 +5,7 @@
 
 use std::collections::{HashMap, HashSet};
 
+use crate::dynapix::{BirthSource, may_birth_in_keyframe};
 use dynapix_optim::{BaEdge, BaParams, BaProblem, Observation};
 use nalgebra::{Matrix4, Vector3};
 
@@ -328,6 +329,11 @@ impl LocalMapper {
                     .keyframe(kf2)
                     .is_none_or(|k| k.map_points.get(i2).is_none_or(|m| m.is_some()));
                 if taken1 || taken2 {
+                    continue;
+                }
+                if !may_birth_in_keyframe(map, kf1, i1, BirthSource::Triangulation)
+                    || !may_birth_in_keyframe(map, kf2, i2, BirthSource::Triangulation)
+                {
                     continue;
                 }
                 if let Some(id) = map.create_point(x, kf1, i1) {

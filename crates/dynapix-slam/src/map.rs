@@ -120,6 +120,8 @@ pub struct KeyFrame {
     pub u_right: Vec<f32>,
     /// DynaPix weight w = 1 − P per keypoint.
     pub weights: Vec<f32>,
+    /// Keypoint on a semantically dynamic class (DynaPix+, gates map-point birth).
+    pub dynamic_class: Vec<bool>,
     /// Map point matched to each keypoint.
     pub map_points: Vec<Option<MapPointId>>,
     /// Feature grid over the undistorted keypoints.
@@ -154,6 +156,7 @@ impl KeyFrame {
             depth: frame.depth.clone(),
             u_right: frame.u_right.clone(),
             weights: frame.weights.clone(),
+            dynamic_class: frame.dynamic_class.clone(),
             map_points: frame.map_points.clone(),
             grid: frame.grid.clone(),
             bow: frame.bow.clone(),
@@ -224,7 +227,8 @@ pub struct MapPoint {
     pub visible: u32,
     /// Times matched in a tracked frame.
     pub found: u32,
-    /// Running DynaPix weight (mean of weights at matched keypoints); 1 for ORB-SLAM2.
+    /// 1 − the point's DynaPix motion probability, initialised from the creating keypoint
+    /// and updated from matched keypoints by [`crate::dynapix::update_matched_points`].
     pub weight: f32,
 }
 
@@ -265,12 +269,15 @@ pub struct CulledLink {
 pub struct MapParams {
     /// Minimum shared points for a covisibility edge (15).
     pub covisibility_threshold: usize,
+    /// DynaPix rules (birth gate, per-point probability, deletion).
+    pub dynapix: crate::dynapix::DynaPixParams,
 }
 
 impl Default for MapParams {
     fn default() -> Self {
         Self {
             covisibility_threshold: 15,
+            dynapix: crate::dynapix::DynaPixParams::default(),
         }
     }
 }
@@ -816,6 +823,7 @@ mod tests {
             depth: vec![1.0; n],
             u_right: vec![5.0; n],
             weights: vec![1.0; n],
+            dynamic_class: vec![false; n],
             map_points: vec![None; n],
             grid: FeatureGrid::empty(),
             bow: vec![],

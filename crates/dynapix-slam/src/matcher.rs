@@ -600,6 +600,14 @@ pub fn fuse(
                 }
             }
             None => {
+                if !crate::dynapix::may_birth_in_keyframe(
+                    map,
+                    kf_id,
+                    best.1,
+                    crate::dynapix::BirthSource::Fusion,
+                ) {
+                    continue;
+                }
                 map.add_observation(mpid, kf_id, best.1);
                 map.set_keyframe_match(kf_id, best.1, Some(mpid));
             }

@@ -45,6 +45,8 @@ pub struct FrameInput<'a> {
     pub depth: &'a DepthImage,
     /// Optional DynaPix weight map w = 1 − P (None = all 1).
     pub weights: Option<&'a WeightImage>,
+    /// Optional DynaPix+ semantic mask (non-zero = dynamic class; gates map-point birth only).
+    pub masks: Option<&'a GrayImage>,
 }
 
 /// Wall-clock time of the steps of one frame, in seconds (measurement only).
@@ -166,7 +168,7 @@ impl<E: FeatureExtractor> System<E> {
         let t0 = Instant::now();
         let (keys, descs) = self.extractor.extract(input.gray);
         let t1 = Instant::now();
-        let frame = Frame::new(
+        let mut frame = Frame::new(
             index,
             input.timestamp,
             keys,
@@ -176,6 +178,9 @@ impl<E: FeatureExtractor> System<E> {
             &self.cam,
             self.bounds,
         );
+        if let Some(m) = input.masks {
+            crate::dynapix::apply_class_mask(&mut frame, m);
+        }
         let num_keypoints = frame.len();
         let out = self
             .tracker

@@ -10,6 +10,7 @@ use std::collections::{BTreeMap, HashSet};
 use dynapix_geometry::Se3;
 use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem, StereoCamera};
 
+use crate::dynapix::{BirthSource, may_birth_in_frame};
 use crate::frame::{Frame, RgbdCamera, normalized, transform};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams, ProjectionCandidate};
@@ -335,7 +336,8 @@ impl Tracker {
         frame.pose = Some(pose);
         let kf = map.insert_keyframe(KeyFrame::from_frame(frame, 0, pose));
         for i in 0..frame.len() {
-            if let Some(x) = frame.unproject(i, &self.cam)
+            if may_birth_in_frame(&map.params.dynapix, frame, i, BirthSource::Initialization)
+                && let Some(x) = frame.unproject(i, &self.cam)
                 && let Some(mp) = map.create_point(x, kf, i)
             {
                 frame.map_points[i] = Some(mp);
@@ -642,6 +644,7 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
+        crate::dynapix::update_matched_points(map, frame);
         let mut inliers = 0;
         for i in 0..frame.len() {
             let Some(id) = frame.map_points[i] else {
@@ -733,7 +736,8 @@ impl Tracker {
             if create {
                 frame.map_points[i] = None;
                 map.set_keyframe_match(kf, i, None);
-                if let Some(x) = frame.unproject(i, &self.cam)
+                if may_birth_in_frame(&map.params.dynapix, frame, i, BirthSource::TrackingKeyFrame)
+                    && let Some(x) = frame.unproject(i, &self.cam)
                     && let Some(id) = map.create_point(x, kf, i)
                 {
                     frame.map_points[i] = Some(id);

@@ -80,10 +80,10 @@ pub struct Args {
 
 /// Everything read from a settings file or preset.
 #[derive(Clone, Debug)]
-struct Settings {
-    camera: RgbdCamera,
-    depth_factor: f64,
-    orb: OrbParams,
+pub(crate) struct Settings {
+    pub(crate) camera: RgbdCamera,
+    pub(crate) depth_factor: f64,
+    pub(crate) orb: OrbParams,
 }
 
 fn preset(p: CameraPreset) -> Settings {
@@ -185,7 +185,7 @@ fn read_settings(path: &Path) -> anyhow::Result<Settings> {
     })
 }
 
-fn resolve_settings(args: &Args) -> anyhow::Result<Settings> {
+pub(crate) fn resolve_settings(args: &Args) -> anyhow::Result<Settings> {
     if let Some(p) = &args.settings {
         return read_settings(p);
     }
@@ -217,7 +217,7 @@ fn resolve_settings(args: &Args) -> anyhow::Result<Settings> {
     )
 }
 
-fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
+pub(crate) fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
     let dir = &args.seq_dir;
     let explicit = args.association.clone().or_else(|| {
         ["association.txt", "associations.txt", "rgbd_assoc.txt"]
@@ -265,7 +265,7 @@ fn nearest_depth(rgb: &[ListEntry], depth: &[ListEntry], max_diff: f64) -> Vec<A
         .collect()
 }
 
-struct Orb(OrbExtractor);
+pub(crate) struct Orb(pub(crate) OrbExtractor);
 
 impl FeatureExtractor for Orb {
     fn extract(&mut self, image: &image::GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
@@ -356,6 +356,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             gray: &gray,
             depth: &depth,
             weights: None,
+            masks: None,
         });
         let st = match res.state {
             TrackingState::Ok => FrameStatus::Tracked,

@@ -1,0 +1,166 @@
+//! `dynapix run` contract on a small generated sequence (synth walking_xyz, 320×240):
+//! `--method orbslam2|dynapix --out OUT` writes `OUT/trajectory.txt`, `run.json` records the
+//! sources (no ground truth at run time by default) and the evaluation. DynaPix runs on a
+//! `prob/` folder made from the synth motion masks (so the SLAM weighting is tested on its
+//! own), and, when `dynapix motion` is available, on maps it computes itself.
+//! Run in release mode (`cargo test --release`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_dynapix")
+}
+
+fn synth(dir: &Path, frames: usize) -> PathBuf {
+    let seq = dir.join("seq");
+    let st = Command::new(bin())
+        .args(["synth", "--preset", "walking_xyz", "--frames"])
+        .arg(frames.to_string())
+        .args(["--width", "320", "--height", "240", "--out"])
+        .arg(&seq)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    seq
+}
+
+fn tracked_lines(p: &Path) -> usize {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .count()
+}
+
+fn run_json(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap()
+}
+
+/// Writes `prob/<name>` from the synth masks: P = 1 where the mask marks a mover.
+fn prob_from_masks(seq: &Path) {
+    let prob = seq.join("prob");
+    std::fs::create_dir_all(&prob).unwrap();
+    for e in std::fs::read_dir(seq.join("mask")).unwrap() {
+        let p = e.unwrap().path();
+        let m = image::open(&p).unwrap().to_luma8();
+        let w = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(
+            m.width(),
+            m.height(),
+            |x, y| image::Luma([if m.get_pixel(x, y).0[0] > 0 { 0 } else { 1000 }]),
+        );
+        w.save(prob.join(p.file_name().unwrap())).unwrap();
+    }
+}
+
+#[test]
+fn run_contract_orbslam2_and_dynapix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 60);
+    prob_from_masks(&seq);
+    for method in ["orbslam2", "dynapix", "threshold"] {
+        let out = tmp.path().join(method);
+        let o = Command::new(bin())
+            .arg("run")
+            .arg(&seq)
+            .args(["--method", method, "--quiet", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{method}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let n = tracked_lines(&out.join("trajectory.txt"));
+        assert!(n >= 50, "{method}: only {n} of 60 frames tracked");
+        let j = run_json(&out);
+        assert_eq!(j["method"], method);
+        assert_eq!(j["ground_truth_used_at_run_time"], false);
+        let ate = j["results"][0]["ate_rmse_m"].as_f64().unwrap();
+        assert!(ate.is_finite() && ate < 0.2, "{method}: ATE {ate}");
+        if method != "orbslam2" {
+            assert_eq!(j["prob"]["source"], "sequence prob/ folder");
+        } else {
+            assert!(j.get("prob").is_none());
+        }
+        assert!(out.join("eval.json").exists());
+        assert!(out.join("status.txt").exists());
+    }
+    // The DynaPix methods read the masks' maps; paper weighting records its clamp.
+    let j = run_json(&tmp.path().join("dynapix"));
+    assert_eq!(j["dynapix"]["weighting"], "Paper");
+    assert!(j["dynapix"]["ba_weight_clamp"].is_array());
+    let j = run_json(&tmp.path().join("threshold"));
+    assert_eq!(j["dynapix"]["weighting"], "Off");
+}
+
+#[test]
+fn dynapix_plus_needs_masks_and_bad_method_fails() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 20);
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .args(["--method", "dynapix+", "--quiet", "--masks"])
+        .arg(tmp.path().join("nope"))
+        .arg("--out")
+        .arg(tmp.path().join("o"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .args(["--method", "bogus", "--out"])
+        .arg(tmp.path().join("o2"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+}
+
+#[test]
+fn dynapix_computes_missing_maps_without_ground_truth() {
+    let help = Command::new(bin())
+        .args(["motion", "--help"])
+        .output()
+        .unwrap();
+    if !String::from_utf8_lossy(&help.stdout).contains("--poses") {
+        eprintln!("skipping: this build has no `dynapix motion --poses`");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 30);
+    let out = tmp.path().join("dpx");
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .args([
+            "--method",
+            "dynapix",
+            "--quiet",
+            "--flow-preset",
+            "ultrafast",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(tracked_lines(&out.join("trajectory.txt")) >= 20);
+    let j = run_json(&out);
+    assert_eq!(j["prob"]["poses"], "own ORB-SLAM2 first pass");
+    let prob = PathBuf::from(j["prob"]["dir"].as_str().unwrap());
+    let n = std::fs::read_dir(&prob)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .is_ok_and(|e| e.path().extension().is_some_and(|x| x == "png"))
+        })
+        .count();
+    assert_eq!(n, 30, "one map per frame in {}", prob.display());
+    assert!(
+        !seq.join("prob").exists(),
+        "the sequence's own prob/ is untouched"
+    );
+}
