@@ -284,6 +284,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
     let mut frames = read_frames(&seq)?;
     if let Some(n) = args.max_frames {
+        if n == 0 {
+            bail!("--max-frames must be at least 1");
+        }
         frames.truncate(n);
     }
     let n = frames.len();
