@@ -1,11 +1,13 @@
 //! Static background reconstructed from neighbouring frames (new; the reference needs
 //! externally inpainted or re-rendered backgrounds, spec §7.2). Many neighbour frames are
 //! splatted into the current view with their depth and poses (paper-mode splatting, so holes
-//! are known), and each pixel takes the per-channel median of all samples that landed there,
-//! the current frame included. A person walking through covers a pixel in only a few of the
-//! frames and drops out of the median; the median of the splatted depths gives the background
-//! depth that the moving term needs to warp the background.
+//! are known), and each pixel combines all samples that landed there, the current frame
+//! included: by default the median of the samples on the far surface (movers are in front of
+//! the static scene), or a plain per-channel median. A person walking through covers a pixel
+//! in only some of the frames and drops out; the depth of the kept samples gives the
+//! background depth that the moving term needs to warp the background.
 
+use dynapix_flow::FlowProvider;
 use dynapix_geometry::{PinholeCamera, Se3};
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
@@ -23,6 +25,29 @@ pub struct ReconstructParams {
     pub step: usize,
     /// Splatting used for the sources (paper mode: holes must be known).
     pub splat: SplatParams,
+    /// Per-pixel statistic over the samples.
+    pub statistic: Statistic,
+    /// Rotation-refinement iterations of each source pose when a flow provider is given
+    /// ([`crate::align::refine_rotation`]); 0 trusts the poses.
+    pub refine_iterations: usize,
+}
+
+/// How the samples of a pixel are combined.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Statistic {
+    /// Per-channel median of all samples.
+    Median,
+    /// Median of the samples on the far surface: movers are in front of the static scene, so
+    /// the samples whose depth lies within `tolerance` (relative) of the depth at `quantile`
+    /// of the pixel's depths are kept. Works while the background is seen in at least
+    /// `1 − quantile` of the frames, where a plain median needs half.
+    FarMedian {
+        /// Quantile of the sample depths that defines the far surface.
+        quantile: f32,
+        /// Relative depth tolerance around it.
+        tolerance: f32,
+    },
 }
 
 impl Default for ReconstructParams {
@@ -31,6 +56,11 @@ impl Default for ReconstructParams {
             radius: 15,
             step: 3,
             splat: SplatParams::new(Mode::Paper),
+            statistic: Statistic::FarMedian {
+                quantile: 0.9,
+                tolerance: 0.05,
+            },
+            refine_iterations: 0,
         }
     }
 }
@@ -76,30 +106,89 @@ pub struct Source<'a> {
 /// One reconstructed image row: colours, depths, sample counts.
 type Row = (Vec<[u8; 3]>, Vec<f32>, Vec<u8>);
 
-fn median_u8(v: &mut [u8]) -> u8 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable(mid).1
-}
-
-fn median_f32(v: &mut [f32]) -> f32 {
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f32::total_cmp).1
+/// Per-pixel colour and depth from the samples `(r, g, b, z)` (z = 0: no depth).
+fn combine(samples: &mut [[f32; 4]], stat: &Statistic, scratch: &mut Vec<f32>) -> ([u8; 3], f32) {
+    let median_of = |scratch: &mut Vec<f32>, vals: &mut dyn Iterator<Item = f32>| -> f32 {
+        scratch.clear();
+        scratch.extend(vals);
+        if scratch.is_empty() {
+            return 0.0;
+        }
+        let mid = scratch.len() / 2;
+        *scratch.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    // Which samples count: all of them, or those on the far surface.
+    let mut keep_far = None;
+    if let Statistic::FarMedian {
+        quantile,
+        tolerance,
+    } = *stat
+    {
+        scratch.clear();
+        scratch.extend(samples.iter().map(|s| s[3]).filter(|&z| z > 0.0));
+        if !scratch.is_empty() {
+            let k = ((quantile.clamp(0.0, 1.0) * (scratch.len() - 1) as f32).round() as usize)
+                .min(scratch.len() - 1);
+            let z_ref = *scratch.select_nth_unstable_by(k, f32::total_cmp).1;
+            keep_far = Some((z_ref * (1.0 - tolerance), z_ref * (1.0 + tolerance)));
+        }
+    }
+    let kept = |s: &[f32; 4]| match keep_far {
+        Some((lo, hi)) => s[3] >= lo && s[3] <= hi,
+        None => true,
+    };
+    let mut col = [0u8; 3];
+    for (c, out) in col.iter_mut().enumerate() {
+        let v = median_of(
+            scratch,
+            &mut samples.iter().filter(|s| kept(s)).map(|s| s[c]),
+        );
+        *out = v.round().clamp(0.0, 255.0) as u8;
+    }
+    let z = median_of(
+        scratch,
+        &mut samples
+            .iter()
+            .filter(|s| kept(s))
+            .map(|s| s[3])
+            .filter(|&z| z > 0.0),
+    );
+    (col, z)
 }
 
 /// Reconstructs the static background of the target frame (`rgb`, `depth`) from `sources`.
+/// With `flow` and `params.refine_iterations > 0`, each source pose is first refined
+/// ([`crate::align::refine_rotation`]).
 pub fn reconstruct_background(
     rgb: &RgbImage,
     depth: &FloatImage,
     sources: &[Source],
     cam: &PinholeCamera,
     params: &ReconstructParams,
+    flow: Option<&dyn FlowProvider>,
 ) -> Result<Background, MotionError> {
     let size = (cam.width, cam.height);
     check_size("background target image", size, rgb.dimensions())?;
     check_size("background target depth", size, depth.dimensions())?;
+    let gray = crate::moving::to_gray(rgb);
     let warped = sources
         .par_iter()
-        .map(|s| splat(s.rgb, s.depth, &s.t_ts, cam, &params.splat))
+        .map(|s| {
+            let t_ts = match flow {
+                Some(f) if params.refine_iterations > 0 => crate::align::refine_rotation(
+                    &gray,
+                    s.rgb,
+                    s.depth,
+                    &s.t_ts,
+                    cam,
+                    &params.splat,
+                    f,
+                    params.refine_iterations,
+                )?,
+                _ => s.t_ts,
+            };
+            splat(s.rgb, s.depth, &t_ts, cam, &params.splat)
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let w = cam.width as usize;
     let mut image = RgbImage::new(cam.width, cam.height);
@@ -111,48 +200,34 @@ pub fn reconstruct_background(
             let mut cols = Vec::with_capacity(w);
             let mut zs = Vec::with_capacity(w);
             let mut ns = Vec::with_capacity(w);
-            let cap = warped.len() + 1;
-            let mut ch = [
-                Vec::with_capacity(cap),
-                Vec::with_capacity(cap),
-                Vec::with_capacity(cap),
-            ];
-            let mut zv = Vec::with_capacity(cap);
+            let mut buf: Vec<[f32; 4]> = Vec::with_capacity(warped.len() + 1);
+            let mut scratch = Vec::with_capacity(warped.len() + 1);
             for x in 0..w {
                 let i = y * w + x;
-                for c in &mut ch {
-                    c.clear();
-                }
-                zv.clear();
-                let p = rgb.get_pixel(x as u32, y as u32).0;
-                for c in 0..3 {
-                    ch[c].push(p[c]);
-                }
-                let z0 = depth.as_raw()[i];
-                if z0 > 0.0 {
-                    zv.push(z0);
-                }
+                buf.clear();
+                let p = rgb.as_raw();
+                buf.push([
+                    p[3 * i] as f32,
+                    p[3 * i + 1] as f32,
+                    p[3 * i + 2] as f32,
+                    depth.as_raw()[i].max(0.0),
+                ]);
                 for wp in &warped {
                     if wp.holes[i] {
                         continue;
                     }
-                    let q = wp.image.get_pixel(x as u32, y as u32).0;
-                    for c in 0..3 {
-                        ch[c].push(q[c]);
-                    }
-                    zv.push(wp.depth.as_raw()[i]);
+                    let q = wp.image.as_raw();
+                    buf.push([
+                        q[3 * i] as f32,
+                        q[3 * i + 1] as f32,
+                        q[3 * i + 2] as f32,
+                        wp.depth.as_raw()[i],
+                    ]);
                 }
-                cols.push([
-                    median_u8(&mut ch[0]),
-                    median_u8(&mut ch[1]),
-                    median_u8(&mut ch[2]),
-                ]);
-                zs.push(if zv.is_empty() {
-                    0.0
-                } else {
-                    median_f32(&mut zv)
-                });
-                ns.push(ch[0].len().min(255) as u8);
+                let (c, z) = combine(&mut buf, &params.statistic, &mut scratch);
+                cols.push(c);
+                zs.push(z);
+                ns.push(buf.len().min(255) as u8);
             }
             (cols, zs, ns)
         })
@@ -207,6 +282,7 @@ mod tests {
             &sources,
             &cam,
             &ReconstructParams::default(),
+            None,
         )
         .unwrap();
         let (truth, truth_depth) = scene.render(&cam, &t_wc, false, 0.0);
@@ -227,6 +303,50 @@ mod tests {
             }
         }
         assert!(ok * 10 > n * 9, "{ok} of {n}");
+    }
+
+    #[test]
+    fn far_median_survives_a_slow_mover_that_defeats_the_median() {
+        let cam = small_camera();
+        let scene = Scene::default();
+        // The panel moves 3 cm per frame and the camera 2 cm the other way: most pixels of the
+        // panel see the box behind it in only 1 to 5 of the 10 neighbours.
+        let frames: Vec<_> = (0..11)
+            .map(|k| {
+                let t = Se3::translation(0.1 - 0.02 * k as f64, 0.0, 0.0);
+                let (rgb, d) = scene.render(&cam, &t, true, -0.35 + 0.03 * k as f64);
+                (rgb, d, t)
+            })
+            .collect();
+        let c = 5;
+        let t_wc = frames[c].2;
+        let sources: Vec<Source> = frames
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| k != c)
+            .map(|(_, f)| Source {
+                rgb: &f.0,
+                depth: &f.1,
+                t_ts: t_wc.inverse() * f.2,
+            })
+            .collect();
+        let (truth, _) = scene.render(&cam, &t_wc, false, 0.0);
+        let mover: Vec<bool> = frames[c].1.iter().map(|z| (z - 1.5).abs() < 1e-3).collect();
+        let run = |statistic: Statistic| {
+            let p = ReconstructParams {
+                statistic,
+                ..Default::default()
+            };
+            let bg = reconstruct_background(&frames[c].0, &frames[c].1, &sources, &cam, &p, None)
+                .unwrap();
+            psnr_masked(&bg.image, &truth, &mover).unwrap()
+        };
+        let median = run(Statistic::Median);
+        let far = run(ReconstructParams::default().statistic);
+        assert!(
+            far > median + 3.0,
+            "median {median} dB, far median {far} dB"
+        );
     }
 
     #[test]

@@ -16,6 +16,7 @@
 //! Everything here is pure computation on in-memory images; reading and writing files is the
 //! job of `dynapix-io` and the CLI.
 
+pub mod align;
 pub mod background;
 pub mod metrics;
 pub mod movable;
@@ -30,7 +31,7 @@ pub(crate) mod testutil;
 use image::{ImageBuffer, Luma};
 use serde::{Deserialize, Serialize};
 
-pub use background::{Background, ReconstructParams, Source, reconstruct_background};
+pub use background::{Background, ReconstructParams, Source, Statistic, reconstruct_background};
 pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};

@@ -92,6 +92,27 @@ impl RocAccumulator {
         Some(acc / (np as f64 * nn as f64))
     }
 
+    /// The best IoU over thresholds on the 1/1000 grid (`P > k/1000`), with its threshold:
+    /// how good the map is once its scale is calibrated. `None` without positives.
+    pub fn best_iou(&self) -> Option<(f32, f64)> {
+        let np = self.positives();
+        if np == 0 {
+            return None;
+        }
+        // Counts strictly above bin k: suffix sums.
+        let (mut pos_above, mut neg_above) = (0u64, 0u64);
+        let mut best: Option<(f32, f64)> = None;
+        for k in (0..BINS).rev() {
+            let iou = pos_above as f64 / (np + neg_above) as f64;
+            if best.is_none_or(|(_, b)| iou > b) {
+                best = Some((k as f32 / 1000.0, iou));
+            }
+            pos_above += self.pos[k];
+            neg_above += self.neg[k];
+        }
+        best
+    }
+
     /// Intersection over union of `P > threshold` with the positives. `None` when both are
     /// empty.
     pub fn iou(&self) -> Option<f64> {
@@ -146,6 +167,13 @@ mod tests {
         let mut t = RocAccumulator::new(0.5);
         t.add(&[0.3; 4], &[true, false, true, false]);
         assert_eq!(t.auc(), Some(0.5));
+        // Best threshold on the second frame: P > 0.2 keeps 0.9, 0.3 and the 0.4 negative
+        // (2/3); P > 0.4 keeps only 0.9 (1/2).
+        let (th, best) = s.best_iou().unwrap();
+        assert!(
+            (best - 2.0 / 3.0).abs() < 1e-12 && (0.2..0.3).contains(&th),
+            "{th} {best}"
+        );
         r.merge(&s);
         assert_eq!(r.positives(), 4);
         assert!(RocAccumulator::new(0.5).auc().is_none());

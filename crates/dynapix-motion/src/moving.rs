@@ -57,6 +57,9 @@ pub struct MovingParams {
     /// Paper: the normalisation divides by at least this range (pixels), so a frame whose
     /// largest motion is tiny keeps small values.
     pub min_range: f32,
+    /// Rotation-refinement iterations of each neighbour's relative pose before splatting
+    /// ([`crate::align::refine_rotation`]); 0 trusts the poses (reference behaviour).
+    pub refine_iterations: usize,
 }
 
 impl Default for MovingParams {
@@ -78,6 +81,7 @@ impl MovingParams {
             lowpass_sigma: 2.0,
             norm_fraction: 0.01,
             min_range: clip[1],
+            refine_iterations: 0,
         }
     }
 }
@@ -230,6 +234,7 @@ struct PairContext<'a> {
     splat_params: &'a SplatParams,
     flow: &'a dyn FlowProvider,
     mode: Mode,
+    refine_iterations: usize,
 }
 
 fn pair(ctx: &PairContext, nb: &Neighbour) -> Result<PairResult, MotionError> {
@@ -241,14 +246,29 @@ fn pair(ctx: &PairContext, nb: &Neighbour) -> Result<PairResult, MotionError> {
         splat_params,
         flow,
         mode,
+        refine_iterations,
     } = *ctx;
+    let t_cn = if refine_iterations > 0 {
+        crate::align::refine_rotation(
+            cur_gray,
+            nb.frame.rgb,
+            nb.frame.depth,
+            &nb.t_cn,
+            cam,
+            splat_params,
+            flow,
+            refine_iterations,
+        )?
+    } else {
+        nb.t_cn
+    };
     let (wd, wb) = rayon::join(
-        || splat(nb.frame.rgb, nb.frame.depth, &nb.t_cn, cam, splat_params),
+        || splat(nb.frame.rgb, nb.frame.depth, &t_cn, cam, splat_params),
         || {
             splat(
                 nb.frame.background,
                 nb.frame.background_depth,
-                &nb.t_cn,
+                &t_cn,
                 cam,
                 splat_params,
             )
@@ -306,6 +326,7 @@ pub fn moving_term(
         splat_params,
         flow,
         mode: params.mode,
+        refine_iterations: params.refine_iterations,
     };
     let pairs: Vec<PairResult> = neighbours
         .par_iter()

@@ -86,32 +86,37 @@ fn project_all(
     cam: &PinholeCamera,
     skip_invalid: bool,
 ) -> Vec<Option<Projected>> {
+    use rayon::prelude::*;
     let (w, h) = src_depth.dimensions();
     let r = t_ts.rotation.to_rotation_matrix();
-    let r = r.matrix();
+    let r = *r.matrix();
     let t = t_ts.translation.vector;
-    let mut out = Vec::with_capacity(w as usize * h as usize);
-    for y in 0..h {
-        let ny = (y as f64 - cam.cy) / cam.fy;
-        for x in 0..w {
-            let z = src_depth.get_pixel(x, y).0[0] as f64;
-            if skip_invalid && !(z > 0.0 && z.is_finite()) {
-                out.push(None);
-                continue;
+    let depth = src_depth.as_raw();
+    let mut out: Vec<Option<Projected>> = Vec::with_capacity(w as usize * h as usize);
+    // Rows are independent; each is written to its own slice, so the result does not depend
+    // on the thread count.
+    out.resize_with(w as usize * h as usize, || None);
+    out.par_chunks_mut(w as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let ny = (y as f64 - cam.cy) / cam.fy;
+            for (x, o) in row.iter_mut().enumerate() {
+                let z = depth[y * w as usize + x] as f64;
+                if skip_invalid && !(z > 0.0 && z.is_finite()) {
+                    continue;
+                }
+                let nx = (x as f64 - cam.cx) / cam.fx;
+                let p = nalgebra::Vector3::new(nx * z, ny * z, z);
+                let q = r * p + t;
+                let u = cam.fx * q.x / q.z + cam.cx;
+                let v = cam.fy * q.y / q.z + cam.cy;
+                if !(u.is_finite() && v.is_finite() && q.z.is_finite()) {
+                    // The reference sends these to the clipped border, cropped away later.
+                    continue;
+                }
+                *o = Some(Projected { u, v, z: q.z });
             }
-            let nx = (x as f64 - cam.cx) / cam.fx;
-            let p = nalgebra::Vector3::new(nx * z, ny * z, z);
-            let q = r * p + t;
-            let u = cam.fx * q.x / q.z + cam.cx;
-            let v = cam.fy * q.y / q.z + cam.cy;
-            if !(u.is_finite() && v.is_finite() && q.z.is_finite()) {
-                // The reference sends these to the clipped border where they are cropped away.
-                out.push(None);
-                continue;
-            }
-            out.push(Some(Projected { u, v, z: q.z }));
-        }
-    }
+        });
     out
 }
 
@@ -226,6 +231,15 @@ fn corners(u: f64, v: f64, w: usize, h: usize) -> [(f32, usize); 4] {
     out
 }
 
+/// `≈ exp(−b)` for b ≥ 0: the reciprocal of the cubic Taylor polynomial of `e^b`. Monotone,
+/// 1 at 0, within 10 % of `exp(−b)` for b ≤ 1.5 and decaying like `b⁻³` beyond, which is
+/// all a soft z-buffer needs; an `exp` per bilinear corner would dominate the splatting time.
+#[inline]
+fn soft_weight(b: f32) -> f32 {
+    let b = b.max(0.0);
+    1.0 / (1.0 + b * (1.0 + b * (0.5 + b / 6.0)))
+}
+
 fn splat_paper(
     src: &RgbImage,
     src_depth: &FloatImage,
@@ -273,7 +287,7 @@ fn splat_paper(
             if behind > params.z_cutoff {
                 continue;
             }
-            let wt = wk * (-behind).exp();
+            let wt = wk * soft_weight(behind);
             let a = &mut acc[t];
             for k in 0..4 {
                 a[k] += wt * col[k];
@@ -304,6 +318,17 @@ fn splat_paper(
 mod tests {
     use super::*;
     use crate::testutil::{Scene, small_camera};
+
+    #[test]
+    fn soft_weight_tracks_exp() {
+        for i in 0..=15 {
+            let b = i as f32 * 0.1;
+            let (a, e) = (soft_weight(b), (-b).exp());
+            assert!((a - e).abs() <= 0.1 * e, "{b}: {a} vs {e}");
+        }
+        assert_eq!(soft_weight(0.0), 1.0);
+        assert!(soft_weight(8.0) < 0.01);
+    }
 
     #[test]
     fn identity_pose_reproduces_the_image() {

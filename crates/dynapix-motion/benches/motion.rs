@@ -1,0 +1,129 @@
+//! Speed of the motion-probability stages on real 640×480 frames (TUM fr1_xyz from
+//! `../shared/data`; skipped with a message when the data is absent):
+//! `cargo bench -p dynapix-motion --bench motion`.
+
+use std::path::PathBuf;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use dynapix_flow::FlowProvider;
+use dynapix_flow::dis::{DisFlow, Preset};
+use dynapix_geometry::PinholeCamera;
+use dynapix_io::Trajectory;
+use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
+use dynapix_motion::moving::to_gray;
+use dynapix_motion::{
+    FrameImages, Mode, MotionParams, Neighbour, SplatParams, Variant, motion_probability, movable,
+    splat,
+};
+
+fn data_dir() -> PathBuf {
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
+    ))
+}
+
+fn bench(c: &mut Criterion) {
+    let dir = data_dir();
+    let Ok(list) = dynapix_io::tum::read_list(dir.join("rgb.txt")) else {
+        eprintln!("skipping: {} not found", dir.display());
+        return;
+    };
+    let Ok(dlist) = dynapix_io::tum::read_list(dir.join("depth.txt")) else {
+        eprintln!("skipping: no depth.txt");
+        return;
+    };
+    let assoc = dynapix_io::tum::associate_lists(&list, &dlist, 0.0, 0.02);
+    let Ok(traj) = Trajectory::read_tum(dir.join("groundtruth.txt")) else {
+        eprintln!("skipping: no groundtruth.txt");
+        return;
+    };
+    let cam = PinholeCamera::new(640, 480, 517.306408, 516.469215, 318.643040, 255.313989);
+    let frames: Vec<_> = assoc
+        .iter()
+        .skip(20)
+        .take(31)
+        .filter_map(|a| {
+            let rgb = dynapix_io::images::read_rgb(dir.join(&a.rgb)).ok()?;
+            let depth = dynapix_io::images::read_depth(dir.join(&a.depth), 5000.0).ok()?;
+            let pose = traj.interpolate(a.t_rgb, 0.05)?;
+            Some((rgb, depth, pose))
+        })
+        .collect();
+    if frames.len() < 31 {
+        eprintln!("skipping: too few frames with poses");
+        return;
+    }
+    let c0 = 15;
+    let (rgb, depth, t_wc) = &frames[c0];
+    let bg = &frames[c0 + 3].0; // any other frame stands in for a background image
+    let t_cn = t_wc.inverse() * frames[c0 + 1].2;
+    let mut g = c.benchmark_group("motion_640x480");
+    g.sample_size(10);
+    let mp = dynapix_motion::MovableParams::default();
+    g.bench_function("movable", |b| {
+        b.iter(|| movable(rgb, bg, depth, &mp).unwrap())
+    });
+    for mode in [Mode::Paper, Mode::Reference] {
+        let sp = SplatParams::new(mode);
+        g.bench_function(format!("splat_{mode:?}"), |b| {
+            b.iter(|| splat(&frames[c0 + 1].0, &frames[c0 + 1].1, &t_cn, &cam, &sp).unwrap())
+        });
+    }
+    let ga = to_gray(rgb);
+    let gb = to_gray(&frames[c0 + 1].0);
+    for preset in [Preset::Ultrafast, Preset::Fast, Preset::Medium] {
+        let flow = DisFlow::with_preset(preset);
+        g.bench_function(format!("dis_{preset:?}"), |b| {
+            b.iter(|| flow.flow(&ga, &gb).unwrap())
+        });
+    }
+    let view = |k: usize| FrameImages {
+        rgb: &frames[k].0,
+        depth: &frames[k].1,
+        background: &frames[k].0,
+        background_depth: &frames[k].1,
+    };
+    let cur = FrameImages {
+        background: bg,
+        ..view(c0)
+    };
+    let nbs: Vec<Neighbour> = [c0 - 1, c0 + 1]
+        .iter()
+        .map(|&k| Neighbour {
+            frame: view(k),
+            t_cn: t_wc.inverse() * frames[k].2,
+        })
+        .collect();
+    for (mode, preset) in [
+        (Mode::Paper, Preset::Fast),
+        (Mode::Paper, Preset::Medium),
+        (Mode::Reference, Preset::Fast),
+    ] {
+        let flow = DisFlow::with_preset(preset);
+        let params = MotionParams::new(Variant::Tum, mode);
+        g.bench_function(format!("frame_{mode:?}_{preset:?}"), |b| {
+            b.iter(|| motion_probability(&cur, &nbs, &cam, &flow, &params).unwrap())
+        });
+    }
+    let rp = ReconstructParams::default();
+    let sources: Vec<Source> = rp
+        .offsets()
+        .iter()
+        .map(|&o| {
+            let k = (c0 as i64 + o) as usize;
+            Source {
+                rgb: &frames[k].0,
+                depth: &frames[k].1,
+                t_ts: t_wc.inverse() * frames[k].2,
+            }
+        })
+        .collect();
+    g.bench_function("reconstruct_background_10_sources", |b| {
+        b.iter(|| reconstruct_background(rgb, depth, &sources, &cam, &rp, None).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
