@@ -135,6 +135,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 flow_preset: args.flow_preset.clone(),
                 max_frames: None,
                 settings: None,
+                allow_missing_prob: false,
                 quiet: false,
             };
             if method == Method::Dynapix && !args.oracle_poses {

@@ -83,6 +83,7 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         flow_preset: a.flow_preset.clone(),
         max_frames: a.max_frames,
         settings: None,
+        allow_missing_prob: false,
         quiet: true,
     }
 }
