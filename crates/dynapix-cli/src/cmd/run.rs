@@ -131,7 +131,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "ema")]
     pub update: UpdateArg,
     /// EMA weight of the newest observation.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.2)]
     pub ema_alpha: f32,
     /// γ_add: map points are born only where P ≤ γ_add.
     #[arg(long, default_value_t = 0.05)]
