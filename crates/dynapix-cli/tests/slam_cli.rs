@@ -100,6 +100,18 @@ fn run_slam(seq: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
 }
 
 #[test]
+fn unknown_camera_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("my_sequence");
+    std::fs::create_dir_all(&seq).unwrap();
+    let out = run_slam(&seq, &tmp.path().join("out"), &[]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("cannot tell the camera"), "{err}");
+    assert!(!tmp.path().join("out/trajectory.txt").exists());
+}
+
+#[test]
 fn fr1_xyz_accuracy_tracking_rate_and_determinism() {
     let Some(seq) = fr1_xyz() else { return };
     let tmp = tempfile::tempdir().unwrap();
@@ -133,16 +145,23 @@ fn fr1_xyz_accuracy_tracking_rate_and_determinism() {
     }
 }
 
-/// Evaluates an existing trajectory: `DYNAPIX_ATE_EST=path cargo test … ate_of_file -- --ignored`.
+/// Evaluates an existing trajectory: `DYNAPIX_ATE_EST=path [DYNAPIX_ATE_GT=groundtruth]
+/// cargo test … ate_of_file -- --ignored` (ground truth defaults to fr1_xyz's).
 #[test]
 #[ignore]
 fn ate_of_file() {
     let Ok(p) = std::env::var("DYNAPIX_ATE_EST") else {
         return;
     };
-    let Some(seq) = fr1_xyz() else { return };
+    let gt_path = match std::env::var("DYNAPIX_ATE_GT") {
+        Ok(g) => PathBuf::from(g),
+        Err(_) => match fr1_xyz() {
+            Some(seq) => seq.join("groundtruth.txt"),
+            None => return,
+        },
+    };
     let est = read_poses(Path::new(&p));
-    let gt = read_poses(&seq.join("groundtruth.txt"));
+    let gt = read_poses(&gt_path);
     let (ate, pairs) = ate_rmse(&est, &gt);
     eprintln!("ATE RMSE {ate:.5} m over {pairs} poses");
 }

@@ -33,13 +33,18 @@ pub fn normalized(t: &Se3) -> Se3 {
     )
 }
 
+/// Bag-of-words vector: `(word, weight)` sorted by word.
+pub type BowWords = Vec<(u32, f64)>;
+/// Feature vector: `(vocabulary node, keypoint indices)` sorted by node.
+pub type FeatureGroups = Vec<(u32, Vec<u32>)>;
+
 /// BoW vector `(word, weight)` and feature vector `node → keypoint indices` grouped at tree
 /// depth `group_depth` (2 ≈ ORB-SLAM2's `levels_up = 4` on its 6-level vocabulary).
 pub fn bow_vectors(
     vocab: &Vocabulary,
     descs: &[Descriptor],
     group_depth: usize,
-) -> (Vec<(u32, f64)>, Vec<(u32, Vec<u32>)>) {
+) -> (BowWords, FeatureGroups) {
     let levels_up = vocab.levels().saturating_sub(group_depth);
     let (bow, feat) = vocab.transform_with_levels_up(descs, levels_up);
     (

@@ -48,6 +48,10 @@ pub struct LocalMappingParams {
     pub kf_cull_observers: usize,
     /// Vocabulary tree depth at which features are grouped for BoW matching (2).
     pub bow_group_depth: usize,
+    /// Most covisible keyframes optimised by local BA (by shared points; others observing the
+    /// local points are held fixed). ORB-SLAM2 takes all covisibles, which makes every local
+    /// BA global when the whole map is covisible (small static scenes); 20 keeps it local.
+    pub ba_max_local_keyframes: usize,
     /// Bundle adjustment parameters.
     pub ba: BaParams,
     /// Matcher thresholds.
@@ -72,6 +76,7 @@ impl Default for LocalMappingParams {
             kf_redundancy: 0.9,
             kf_cull_observers: 3,
             bow_group_depth: 2,
+            ba_max_local_keyframes: 20,
             ba: BaParams::default(),
             matcher: MatcherParams::default(),
         }
@@ -130,14 +135,28 @@ impl LocalMapper {
         {
             (k.bow, k.feat) = bow_vectors(v, &k.descriptors, self.params.bow_group_depth);
         }
+        let t0 = std::time::Instant::now();
         self.insert_keyframe(map, kf);
         stats.culled_points = self.cull_points(map, kf);
+        let t1 = std::time::Instant::now();
         stats.new_points = self.triangulate(map, kf);
+        let t2 = std::time::Instant::now();
         stats.fused = self.search_in_neighbors(map, kf);
+        let t3 = std::time::Instant::now();
         if map.num_keyframes() > self.params.ba_min_keyframes {
             stats.ba_outliers = self.local_bundle_adjustment(map, kf);
         }
+        let t4 = std::time::Instant::now();
         stats.culled_keyframes = self.cull_keyframes(map, kf);
+        tracing::debug!(
+            insert_ms = (t1 - t0).as_secs_f64() * 1e3,
+            triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
+            fuse_ms = (t3 - t2).as_secs_f64() * 1e3,
+            ba_ms = (t4 - t3).as_secs_f64() * 1e3,
+            cull_ms = t4.elapsed().as_secs_f64() * 1e3,
+            covisibles = map.keyframe(kf).map_or(0, |k| k.ordered.len()),
+            "local mapping"
+        );
         stats
     }
 
@@ -398,7 +417,7 @@ impl LocalMapper {
         fused
     }
 
-    /// Weighted local BA over the keyframe, its covisibles and their points, with observers
+    /// Weighted local BA over the keyframe, its best covisibles and their points, with observers
     /// outside the window held fixed; outlier observations are erased. Returns how many.
     fn local_bundle_adjustment(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
         let Some(k) = map.keyframe(kf) else { return 0 };
@@ -407,7 +426,8 @@ impl LocalMapper {
             k.ordered
                 .iter()
                 .map(|(o, _)| *o)
-                .filter(|o| map.keyframe(*o).is_some()),
+                .filter(|o| map.keyframe(*o).is_some())
+                .take(self.params.ba_max_local_keyframes),
         );
         let mut pose_index: HashMap<KeyFrameId, usize> = HashMap::new();
         for (i, &l) in local.iter().enumerate() {

@@ -50,11 +50,11 @@ impl<T> Arena<T> {
 
     fn insert(&mut self, value: T) -> (u32, u32) {
         self.len += 1;
-        if let Some(i) = self.free.pop() {
-            if let Some(slot) = self.slots.get_mut(i as usize) {
-                slot.value = Some(value);
-                return (i, slot.generation);
-            }
+        if let Some(i) = self.free.pop()
+            && let Some(slot) = self.slots.get_mut(i as usize)
+        {
+            slot.value = Some(value);
+            return (i, slot.generation);
         }
         self.slots.push(Slot {
             generation: 0,
@@ -792,8 +792,7 @@ impl Map {
         None
     }
 
-    /// Reference-keyframe id of a point, keyframe-local keypoint level and other read-only
-    /// helpers used by matching: the octave of keypoint `idx` of `kf`.
+    /// Pyramid level of keypoint `idx` of `kf`.
     pub fn keypoint_octave(&self, kf: KeyFrameId, idx: usize) -> Option<u8> {
         self.keyframe(kf)?.keys_un.get(idx).map(|k| k.octave)
     }

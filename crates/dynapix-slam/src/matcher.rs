@@ -366,6 +366,7 @@ pub fn search_keyframe_to_frame(
 /// Relocalisation's extra projection search: projects the map points of `kf` not yet in
 /// `found` into `frame` (pose set) within `th`·scale and Hamming ≤ `orb_dist`, with the
 /// rotation check (ORB-SLAM2 `SearchByProjection(Frame&, KeyFrame*, set, th, ORBdist)`).
+#[allow(clippy::too_many_arguments)]
 pub fn search_keyframe_by_projection(
     frame: &mut Frame,
     kf: &KeyFrame,

@@ -80,6 +80,8 @@ pub struct FrameResult {
     pub inliers: usize,
     /// The map was reset (lost right after initialisation).
     pub reset: bool,
+    /// The frame was relocalised against the map.
+    pub relocalised: bool,
     /// Step timings.
     pub times: StepTimes,
     /// Local-mapping counters when a keyframe was processed.
@@ -218,6 +220,7 @@ impl<E: FeatureExtractor> System<E> {
             num_keypoints,
             inliers: out.inliers,
             reset,
+            relocalised: out.relocalised,
             times: StepTimes {
                 extract: (t1 - t0).as_secs_f64(),
                 track: (t2 - t1).as_secs_f64(),

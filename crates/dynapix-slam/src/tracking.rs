@@ -260,12 +260,6 @@ impl Tracker {
                 (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
             {
                 self.velocity = Some(normalized(&(cur * last.inverse())));
-                tracing::debug!(
-                    frame = frame.id,
-                    vel_t = self.velocity.map(|v| v.translation.vector.norm()),
-                    vel_r = self.velocity.map(|v| v.rotation.angle()),
-                    "velocity"
-                );
             } else {
                 self.velocity = None;
             }
@@ -403,36 +397,6 @@ impl Tracker {
         frame.pose = Some(normalized(&result.pose));
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);
-        }
-        if tracing::enabled!(tracing::Level::TRACE) {
-            let mut per = vec![(0.0f64, 0usize, 0.0f64); 8];
-            for (k, &i) in idx.iter().enumerate() {
-                if frame.outlier[i] {
-                    continue;
-                }
-                let pc = transform(&result.pose, &problem.points[k]);
-                if let Some((u, v, ur)) = self.cam.project(&pc) {
-                    let o = &problem.observations[k];
-                    let lv = (frame.keys_un[i].octave as usize).min(7);
-                    per[lv].0 += ((u - o.uv[0]).powi(2) + (v - o.uv[1]).powi(2)).sqrt();
-                    per[lv].1 += 1;
-                    if let Some(r) = o.u_right {
-                        per[lv].2 += (ur - r).abs();
-                    }
-                }
-            }
-            let s: Vec<String> = per
-                .iter()
-                .map(|(e, n, r)| {
-                    format!(
-                        "{}:{:.2}/{:.2}",
-                        n,
-                        e / (*n).max(1) as f64,
-                        r / (*n).max(1) as f64
-                    )
-                })
-                .collect();
-            tracing::trace!(frame = frame.id, "reproj per level {}", s.join(" "));
         }
         result.num_inliers
     }
@@ -805,5 +769,140 @@ pub fn stereo_camera(cam: &RgbdCamera) -> StereoCamera {
         cx: cam.pinhole.cx,
         cy: cam.pinhole.cy,
         bf: cam.bf,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::KeyPoint;
+    use crate::frame::{DepthImage, ScalePyramid};
+    use crate::map::MapParams;
+    use dynapix_geometry::PinholeCamera;
+    use image::Luma;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A static world of textured points seen by a pinhole RGB-D camera: keypoints are exact
+    /// projections, descriptors are per-point random bit strings, depth is exact.
+    struct World {
+        points: Vec<Vector3<f64>>,
+        descs: Vec<[u8; 32]>,
+        cam: RgbdCamera,
+    }
+
+    impl World {
+        fn new(n: usize, seed: u64) -> Self {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let points = (0..n)
+                .map(|_| {
+                    Vector3::new(
+                        rng.random_range(-1.5..1.5),
+                        rng.random_range(-1.1..1.1),
+                        rng.random_range(1.5..3.0),
+                    )
+                })
+                .collect();
+            let descs = (0..n).map(|_| rng.random()).collect();
+            Self {
+                points,
+                descs,
+                cam: RgbdCamera::new(PinholeCamera::tum_fr3(), 40.0, 40.0, 30.0),
+            }
+        }
+
+        fn frame(&self, id: u64, tcw: &Se3) -> Frame {
+            let mut keys = Vec::new();
+            let mut descs = Vec::new();
+            let mut depth = DepthImage::new(640, 480);
+            for (p, d) in self.points.iter().zip(&self.descs) {
+                let pc = transform(tcw, p);
+                let Some((u, v, _)) = self.cam.project(&pc) else {
+                    continue;
+                };
+                if !(1.0..639.0).contains(&u) || !(1.0..479.0).contains(&v) {
+                    continue;
+                }
+                keys.push(KeyPoint {
+                    x: u as f32,
+                    y: v as f32,
+                    angle: 0.0,
+                    response: 1.0,
+                    octave: 0,
+                    size: 31.0,
+                });
+                descs.push(*d);
+                depth.put_pixel(u as u32, v as u32, Luma([pc.z as f32]));
+            }
+            Frame::new(
+                id,
+                id as f64 / 30.0,
+                keys,
+                descs,
+                &depth,
+                None,
+                &self.cam,
+                self.cam.image_bounds(),
+            )
+        }
+    }
+
+    fn pose_at(i: u64) -> Se3 {
+        let s = i as f64;
+        Se3::from_parts(
+            Translation3::new(0.01 * s, -0.004 * s, 0.006 * s),
+            UnitQuaternion::from_euler_angles(0.002 * s, -0.003 * s, 0.001 * s),
+        )
+    }
+
+    #[test]
+    fn tracks_a_synthetic_sequence_and_recovers_the_poses() {
+        let world = World::new(1500, 7);
+        let mut map = Map::new(ScalePyramid::new(8, 1.2), MapParams::default());
+        let mut tracker = Tracker::new(world.cam.clone(), TrackingParams::default());
+        let first = world.frame(0, &pose_at(0));
+        assert!(first.len() > 500);
+        let out = tracker.track(&mut map, first, None);
+        assert_eq!(out.state, TrackingState::Ok);
+        assert!(out.new_keyframe.is_some());
+        // World frame = first camera, so later poses are relative to pose 0.
+        let t0_inv = pose_at(0).inverse();
+        for i in 1..12 {
+            let truth = pose_at(i) * t0_inv;
+            let out = tracker.track(&mut map, world.frame(i, &pose_at(i)), None);
+            assert_eq!(out.state, TrackingState::Ok, "frame {i}");
+            let est = out.pose.unwrap();
+            let dt = (est.translation.vector - truth.translation.vector).norm();
+            let dr = est.rotation.angle_to(&truth.rotation);
+            assert!(dt < 1e-3 && dr < 1e-3, "frame {i}: {dt} m, {dr} rad");
+            assert!(out.inliers > 300, "frame {i}: {} inliers", out.inliers);
+        }
+    }
+
+    #[test]
+    fn a_frame_without_features_is_lost_and_not_initialised_before_a_map() {
+        let world = World::new(1500, 3);
+        let mut map = Map::new(ScalePyramid::new(8, 1.2), MapParams::default());
+        let mut tracker = Tracker::new(world.cam.clone(), TrackingParams::default());
+        let empty = Frame::new(
+            0,
+            0.0,
+            vec![],
+            vec![],
+            &DepthImage::new(640, 480),
+            None,
+            &world.cam,
+            world.cam.image_bounds(),
+        );
+        let out = tracker.track(&mut map, empty.clone(), None);
+        assert_eq!(out.state, TrackingState::NotInitialized);
+        tracker.track(&mut map, world.frame(1, &pose_at(0)), None);
+        let mut lost = empty;
+        lost.id = 2;
+        let out = tracker.track(&mut map, lost, None);
+        assert_eq!(out.state, TrackingState::Lost);
+        // A one-keyframe map is reset by the system.
+        assert!(out.reset_requested);
     }
 }

@@ -3,19 +3,17 @@
 //! frame matching (ratio 0.75), a seeded RANSAC pose hypothesis, pose optimisation and the
 //! two extra projection searches before accepting with ≥ 50 inliers.
 //!
-//! The minimal solver is a 3-point rigid alignment of the frame's depth-backprojected
-//! keypoints to the map points (RGB-D gives 3-D on both sides); hypotheses are scored by
-//! reprojection χ² (5.991·σ²), as ORB-SLAM2 scores its EPnP hypotheses.
+//! Pose hypotheses come from the seeded EPnP RANSAC of `dynapix_geometry::pnp` (seed from
+//! the frame and candidate, so runs are reproducible).
 
 use std::collections::{BTreeMap, HashSet};
 
 use dynapix_geometry::Se3;
-use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use dynapix_geometry::pnp::{PnpRansac, PnpRansacParams};
+use nalgebra::{Vector2, Vector3};
 
 use super::Tracker;
-use crate::frame::{Frame, transform};
+use crate::frame::Frame;
 use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matcher;
 
@@ -139,125 +137,51 @@ pub fn candidates(map: &Map, frame: &Frame, p: &RelocParams) -> Vec<KeyFrameId> 
     out
 }
 
-/// Rigid transform `T` minimising Σ|T·a − b|² (Kabsch/Horn, no scale).
-fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Se3> {
-    if a.len() < 3 || a.len() != b.len() {
-        return None;
-    }
-    let n = a.len() as f64;
-    let ca = a.iter().sum::<Vector3<f64>>() / n;
-    let cb = b.iter().sum::<Vector3<f64>>() / n;
-    let mut h = Matrix3::zeros();
-    for (x, y) in a.iter().zip(b) {
-        h += (x - ca) * (y - cb).transpose();
-    }
-    let svd = h.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let mut d = Matrix3::identity();
-    if (vt.transpose() * u.transpose()).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    let r = vt.transpose() * d * u.transpose();
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    let t = cb - rot * ca;
-    Some(Se3::from_parts(Translation3::from(t), rot))
-}
-
-/// RANSAC pose `T_cw` from matches (keypoint index, world point); returns the pose and the
-/// inlier keypoint indices.
-fn ransac_pose(
+/// Seeded EPnP RANSAC on the matches `(keypoint index, world point)`; returns `T_cw` and
+/// the inlier keypoint indices.
+fn pnp_pose(
     tracker: &Tracker,
     map: &Map,
     frame: &Frame,
     matches: &[(usize, Vector3<f64>)],
-    rng: &mut ChaCha8Rng,
+    seed: u64,
 ) -> Option<(Se3, Vec<usize>)> {
     let p = &tracker.params.reloc;
-    let cam = &tracker.cam;
-    // Camera-frame points from depth (only keypoints with depth can seed a hypothesis).
-    let seeds: Vec<(usize, Vector3<f64>, Vector3<f64>)> = matches
+    let points: Vec<Vector3<f64>> = matches.iter().map(|m| m.1).collect();
+    let pixels: Vec<Vector2<f64>> = matches
         .iter()
-        .filter_map(|&(i, xw)| {
-            let z = *frame.depth.get(i)? as f64;
-            if z <= 0.0 {
-                return None;
-            }
-            let kp = frame.keys_un.get(i)?;
-            let xc = Vector3::new(
-                (kp.x as f64 - cam.pinhole.cx) * z / cam.pinhole.fx,
-                (kp.y as f64 - cam.pinhole.cy) * z / cam.pinhole.fy,
-                z,
-            );
-            Some((i, xw, xc))
+        .map(|&(i, _)| {
+            let k = &frame.keys_un[i];
+            Vector2::new(k.x as f64, k.y as f64)
         })
         .collect();
-    if seeds.len() < p.min_inliers.max(3) {
-        return None;
-    }
-    let inliers_of = |t: &Se3| -> Vec<usize> {
-        matches
-            .iter()
-            .filter(|(i, xw)| {
-                let pc = transform(t, xw);
-                let Some((u, v, _)) = cam.project(&pc) else {
-                    return false;
-                };
-                let kp = &frame.keys_un[*i];
-                let (eu, ev) = (u - kp.x as f64, v - kp.y as f64);
-                let s2 = map.pyramid.sigma2_of(kp.octave as usize) as f64;
-                eu * eu + ev * ev < p.chi2 * s2
-            })
-            .map(|(i, _)| *i)
-            .collect()
-    };
-    let mut best: Option<(Se3, Vec<usize>)> = None;
-    let mut iterations = p.max_iterations;
-    let mut it = 0;
-    let n = seeds.len();
-    while it < iterations {
-        it += 1;
-        let mut pick = [0usize; 3];
-        pick[0] = rng.random_range(0..n);
-        pick[1] = rng.random_range(0..n);
-        pick[2] = rng.random_range(0..n);
-        if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
-            continue;
-        }
-        let a: Vec<Vector3<f64>> = pick.iter().map(|&k| seeds[k].1).collect();
-        let b: Vec<Vector3<f64>> = pick.iter().map(|&k| seeds[k].2).collect();
-        let Some(t) = rigid_fit(&a, &b) else { continue };
-        let inl = inliers_of(&t);
-        if best.as_ref().is_none_or(|(_, bi)| inl.len() > bi.len()) {
-            let ratio = inl.len() as f64 / matches.len() as f64;
-            if ratio > 0.0 && ratio < 1.0 {
-                let k = ((1.0 - p.probability).ln() / (1.0 - ratio.powi(3)).ln()).ceil();
-                if k.is_finite() && k > 0.0 {
-                    iterations = iterations.min(k as usize);
-                }
-            } else if ratio >= 1.0 {
-                iterations = it;
-            }
-            best = Some((t, inl));
-        }
-    }
-    let (t, inl) = best?;
-    if inl.len() < p.min_inliers {
-        return None;
-    }
-    // Refine on all depth inliers.
-    let set: HashSet<usize> = inl.iter().copied().collect();
-    let (a, b): (Vec<_>, Vec<_>) = seeds
+    let sigma2: Vec<f64> = matches
         .iter()
-        .filter(|s| set.contains(&s.0))
-        .map(|s| (s.1, s.2))
-        .unzip();
-    let t2 = rigid_fit(&a, &b).unwrap_or(t);
-    let inl2 = inliers_of(&t2);
-    if inl2.len() >= inl.len() {
-        Some((t2, inl2))
-    } else {
-        Some((t, inl))
-    }
+        .map(|&(i, _)| map.pyramid.sigma2_of(frame.keys_un[i].octave as usize) as f64)
+        .collect();
+    let params = PnpRansacParams {
+        probability: p.probability,
+        min_inliers: p.min_inliers,
+        max_iterations: p.max_iterations,
+        th2: p.chi2,
+        seed,
+        ..PnpRansacParams::default()
+    };
+    let mut ransac =
+        PnpRansac::new(&points, &pixels, &sigma2, &tracker.cam.pinhole, &params).ok()?;
+    let (pose, inl) = ransac.solve()?;
+    let idx = matches
+        .iter()
+        .zip(&inl)
+        .filter(|(_, ok)| **ok)
+        .map(|(m, _)| m.0)
+        .collect();
+    Some((pose, idx))
+}
+
+fn kf_id_seed(map: &Map, kf: KeyFrameId) -> u64 {
+    map.keyframe(kf)
+        .map_or(0, |k| k.seq.wrapping_mul(0xbf58_476d_1ce4_e5b9))
 }
 
 fn drop_outliers(frame: &mut Frame) {
@@ -273,7 +197,6 @@ fn drop_outliers(frame: &mut Frame) {
 pub(super) fn relocalize(tracker: &mut Tracker, map: &mut Map, frame: &mut Frame) -> bool {
     let p = tracker.params.reloc.clone();
     let cands = candidates(map, frame, &p);
-    let mut rng = ChaCha8Rng::seed_from_u64(p.seed ^ frame.id.wrapping_mul(0x9e37_79b9_7f4a_7c15));
     for kf_id in cands {
         let Some(kf) = map.keyframe(kf_id) else {
             continue;
@@ -294,10 +217,11 @@ pub(super) fn relocalize(tracker: &mut Tracker, map: &mut Map, frame: &mut Frame
             .enumerate()
             .filter_map(|(i, m)| Some((i, map.point((*m)?)?.position)))
             .collect();
-        let Some((pose, inliers)) = ransac_pose(tracker, map, frame, &pairs, &mut rng) else {
+        let seed = p.seed ^ frame.id.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ kf_id_seed(map, kf_id);
+        let Some((pose, inliers)) = pnp_pose(tracker, map, frame, &pairs, seed) else {
             continue;
         };
-        frame.pose = Some(pose);
+        frame.pose = Some(crate::frame::normalized(&pose));
         frame.map_points.iter_mut().for_each(|m| *m = None);
         for &i in &inliers {
             frame.map_points[i] = matches[i];
@@ -362,21 +286,6 @@ pub(super) fn relocalize(tracker: &mut Tracker, map: &mut Map, frame: &mut Frame
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rigid_fit_recovers_a_transform() {
-        let t = Se3::from_parts(
-            Translation3::new(0.3, -0.1, 0.5),
-            UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
-        );
-        let a: Vec<Vector3<f64>> = (0..6)
-            .map(|i| Vector3::new(i as f64, (i * i) as f64 * 0.1, 1.0 + (i % 3) as f64))
-            .collect();
-        let b: Vec<Vector3<f64>> = a.iter().map(|x| transform(&t, x)).collect();
-        let r = rigid_fit(&a, &b).unwrap();
-        assert!((r.translation.vector - t.translation.vector).norm() < 1e-9);
-        assert!(r.rotation.angle_to(&t.rotation) < 1e-9);
-    }
 
     #[test]
     fn bow_score_is_one_for_identical_vectors() {
