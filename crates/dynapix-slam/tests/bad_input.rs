@@ -96,6 +96,7 @@ fn bad_frames_are_lost_then_relocalised_without_panic() {
             gray: &g,
             depth: &d,
             weights: None,
+            masks: None,
         })
     };
     // A black frame before initialisation leaves the system uninitialised.

@@ -127,7 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 masks: None,
                 weighting: run::WeightingArg::Paper,
                 update: run::UpdateArg::Ema,
-                ema_alpha: 0.5,
+                ema_alpha: 0.2,
                 gamma_add: 0.05,
                 gamma_del: 0.1,
                 cache: None,
@@ -135,6 +135,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 flow_preset: args.flow_preset.clone(),
                 max_frames: None,
                 settings: None,
+                allow_missing_prob: false,
                 quiet: false,
             };
             if method == Method::Dynapix && !args.oracle_poses {

@@ -75,7 +75,7 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         masks: None,
         weighting: a.weighting,
         update: a.update,
-        ema_alpha: 0.5,
+        ema_alpha: 0.2,
         gamma_add: 0.05,
         gamma_del: 0.1,
         cache: a.cache.as_ref().map(|c| c.join(seq_name(seq))),
@@ -83,6 +83,7 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         flow_preset: a.flow_preset.clone(),
         max_frames: a.max_frames,
         settings: None,
+        allow_missing_prob: false,
         quiet: true,
     }
 }

@@ -131,7 +131,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "ema")]
     pub update: UpdateArg,
     /// EMA weight of the newest observation.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.2)]
     pub ema_alpha: f32,
     /// γ_add: map points are born only where P ≤ γ_add.
     #[arg(long, default_value_t = 0.05)]
@@ -154,6 +154,10 @@ pub struct Args {
     /// Camera settings YAML (default: `SEQ_DIR/camera.yaml` or the TUM preset by name).
     #[arg(long)]
     pub settings: Option<PathBuf>,
+    /// Frames without a probability map run unweighted (counted in `run.json`) instead of
+    /// stopping with an error (e.g. when `dynapix motion` associated rgb and depth differently).
+    #[arg(long)]
+    pub allow_missing_prob: bool,
     /// Hide progress bars.
     #[arg(long)]
     pub quiet: bool,
@@ -238,18 +242,13 @@ fn slam_pass(
         };
         system = system.with_vocabulary(vocab);
     }
-    type Loaded = (
-        f64,
-        anyhow::Result<(image::RgbImage, dynapix_io::DepthImage)>,
-        anyhow::Result<Option<WeightImage>>,
-        anyhow::Result<Option<GrayImage>>,
-    );
     let (tx, rx) = sync_channel::<Loaded>(4);
     let dir = args.seq_dir.clone();
     let depth_factor = settings.depth_factor;
     let list = frames.clone();
     let prob_dir = prob_dir.map(Path::to_path_buf);
     let mask_dir = mask_dir.map(Path::to_path_buf);
+    let allow_missing = args.allow_missing_prob;
     let loader = std::thread::spawn(move || {
         for a in list {
             let rgb_path = resolve_path(&dir, &a.rgb);
@@ -263,6 +262,10 @@ fn slam_pass(
                 None => Ok(None),
                 Some(d) => {
                     let p = d.join(&name);
+                    if allow_missing && !p.exists() {
+                        return_missing(&tx, a.t_rgb, rd);
+                        continue;
+                    }
                     read_prob_png_raw(&p)
                         .with_context(|| format!("probability map {}", p.display()))
                         .map(|raw| {
@@ -293,7 +296,7 @@ fn slam_pass(
                         .map(Some)
                 }
             };
-            if tx.send((a.t_rgb, rd, w, m)).is_err() {
+            if tx.send((a.t_rgb, rd, w, m, false)).is_err() {
                 break;
             }
         }
@@ -301,7 +304,9 @@ fn slam_pass(
     let pb = progress(frames.len() as u64, args.quiet, label);
     let mut status = Vec::with_capacity(frames.len());
     let t0 = Instant::now();
-    for (t, rd, w, m) in rx {
+    let mut missing = 0usize;
+    for (t, rd, w, m, miss) in rx {
+        missing += usize::from(miss);
         let (rgb, depth) = rd?;
         let (w, m) = (w?, m?);
         let gray = rgb_to_gray_orbslam(&rgb);
@@ -357,8 +362,27 @@ fn slam_pass(
         "keyframes": system.map().num_keyframes(),
         "map_points": system.map().num_points(),
         "seconds": seconds,
+        "frames_without_prob_map": missing,
     }))
 }
+
+/// Sends a frame without a probability map (it runs unweighted).
+fn return_missing(
+    tx: &std::sync::mpsc::SyncSender<Loaded>,
+    t: f64,
+    rd: anyhow::Result<(image::RgbImage, dynapix_io::DepthImage)>,
+) {
+    let _ = tx.send((t, rd, Ok(None), Ok(None), true));
+}
+
+/// One decoded frame: time, images, weight map, mask, "probability map missing".
+type Loaded = (
+    f64,
+    anyhow::Result<(image::RgbImage, dynapix_io::DepthImage)>,
+    anyhow::Result<Option<WeightImage>>,
+    anyhow::Result<Option<GrayImage>>,
+    bool,
+);
 
 /// Writes a pose for every frame of the sequence from a (possibly incomplete) trajectory:
 /// tracked frames keep theirs, the others take the nearest tracked pose. Returns how many
