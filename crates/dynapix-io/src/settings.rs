@@ -137,6 +137,66 @@ struct RawSettings {
     min_th_fast: Option<i64>,
 }
 
+impl RawSettings {
+    /// Fills every missing key except `Camera.fx fy cx cy` from [`Settings::tum3`]; returns
+    /// the keys filled (`Camera.k3` is optional anyway).
+    fn fill_defaults(&mut self) -> Vec<&'static str> {
+        let d = Settings::tum3();
+        let mut filled = Vec::new();
+        fn fill<T>(slot: &mut Option<T>, v: T, key: &'static str, filled: &mut Vec<&'static str>) {
+            if slot.is_none() {
+                *slot = Some(v);
+                filled.push(key);
+            }
+        }
+        let f = &mut filled;
+        fill(&mut self.k1, d.dist[0], "Camera.k1", f);
+        fill(&mut self.k2, d.dist[1], "Camera.k2", f);
+        fill(&mut self.p1, d.dist[2], "Camera.p1", f);
+        fill(&mut self.p2, d.dist[3], "Camera.p2", f);
+        fill(&mut self.width, i64::from(d.width), "Camera.width", f);
+        fill(&mut self.height, i64::from(d.height), "Camera.height", f);
+        fill(&mut self.fps, d.fps, "Camera.fps", f);
+        fill(&mut self.bf, d.bf, "Camera.bf", f);
+        fill(&mut self.rgb, i64::from(d.rgb), "Camera.RGB", f);
+        fill(&mut self.th_depth, d.th_depth, "ThDepth", f);
+        fill(
+            &mut self.depth_map_factor,
+            d.depth_map_factor,
+            "DepthMapFactor",
+            f,
+        );
+        let o = &d.orb;
+        let n = |v: usize| i64::try_from(v).unwrap_or(i64::MAX);
+        fill(
+            &mut self.n_features,
+            n(o.n_features),
+            "ORBextractor.nFeatures",
+            f,
+        );
+        fill(
+            &mut self.scale_factor,
+            o.scale_factor,
+            "ORBextractor.scaleFactor",
+            f,
+        );
+        fill(&mut self.n_levels, n(o.n_levels), "ORBextractor.nLevels", f);
+        fill(
+            &mut self.ini_th_fast,
+            i64::from(o.ini_th_fast),
+            "ORBextractor.iniThFAST",
+            f,
+        );
+        fill(
+            &mut self.min_th_fast,
+            i64::from(o.min_th_fast),
+            "ORBextractor.minThFAST",
+            f,
+        );
+        filled
+    }
+}
+
 /// Applies the OpenCV-YAML tolerances (see the module doc) without changing line numbers.
 fn preprocess(text: &str) -> String {
     let mut out = String::with_capacity(text.len() + 16);
@@ -203,26 +263,52 @@ impl Settings {
 
     /// Parses and validates settings text; `path` is only used in error messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        Self::parse_impl(text, path, false).map(|(s, _)| s)
+    }
+
+    /// Reads a settings file in which only `Camera.fx fy cx cy` are required: every other
+    /// missing key takes its [`Settings::tum3`] value (no distortion, 640×480, 30 Hz,
+    /// `bf` 40, `ThDepth` 40, `DepthMapFactor` 5000, the default ORB extractor), as the CLI
+    /// has always accepted short camera files. The result is validated like
+    /// [`Settings::read`]. Also returns the keys that were missing, in file-key order.
+    pub fn read_lenient(path: impl AsRef<Path>) -> Result<(Self, Vec<&'static str>)> {
+        let path = path.as_ref();
+        Self::parse_lenient(&read_text(path)?, path)
+    }
+
+    /// Parses settings text like [`Settings::read_lenient`]; `path` is only used in error
+    /// messages.
+    pub fn parse_lenient(text: &str, path: &Path) -> Result<(Self, Vec<&'static str>)> {
+        Self::parse_impl(text, path, true)
+    }
+
+    fn parse_impl(text: &str, path: &Path, lenient: bool) -> Result<(Self, Vec<&'static str>)> {
         let pre = preprocess(text);
         let lines = key_lines(&pre);
         let options = serde_saphyr::options! {
             duplicate_keys: serde_saphyr::DuplicateKeyPolicy::LastWins,
             with_snippet: false,
         };
-        let raw: RawSettings = serde_saphyr::from_str_with_options(&pre, options).map_err(|e| {
-            let msg = e.to_string();
-            match e.location() {
-                Some(loc) if loc.line() > 0 => IoError::parse(path, loc.line() as usize, msg),
-                _ => IoError::invalid(path, msg),
-            }
-        })?;
+        let mut raw: RawSettings =
+            serde_saphyr::from_str_with_options(&pre, options).map_err(|e| {
+                let msg = e.to_string();
+                match e.location() {
+                    Some(loc) if loc.line() > 0 => IoError::parse(path, loc.line() as usize, msg),
+                    _ => IoError::invalid(path, msg),
+                }
+            })?;
         let at = |p: Problem| match lines.get(p.key) {
             Some(&line) => IoError::parse(path, line, format!("{}: {}", p.key, p.message)),
             None => IoError::invalid(path, format!("{}: {}", p.key, p.message)),
         };
+        let defaulted = if lenient {
+            raw.fill_defaults()
+        } else {
+            Vec::new()
+        };
         let s = Self::from_raw(raw).map_err(at)?;
         s.check().map_err(at)?;
-        Ok(s)
+        Ok((s, defaulted))
     }
 
     fn from_raw(r: RawSettings) -> std::result::Result<Self, Problem> {
@@ -570,6 +656,41 @@ mod tests {
     use super::*;
     use image::Luma;
     use std::path::PathBuf;
+
+    #[test]
+    fn lenient_fills_missing_keys_and_still_validates() {
+        let p = Path::new("cam.yaml");
+        let short = "%YAML:1.0\nCamera.fx: 500.0\nCamera.fy: 501.0\nCamera.cx: 300.0\n\
+                     Camera.cy: 200.0\nDepthMapFactor: 1000.0\nORBextractor.nFeatures: 3000\n";
+        assert!(
+            Settings::parse(short, p).is_err(),
+            "strict parse must refuse"
+        );
+        let (s, missing) = Settings::parse_lenient(short, p).unwrap();
+        assert_eq!((s.fx, s.fy, s.cx, s.cy), (500.0, 501.0, 300.0, 200.0));
+        assert_eq!(s.depth_map_factor, 1000.0);
+        assert_eq!(s.orb.n_features, 3000);
+        let d = Settings::tum3();
+        assert_eq!(
+            (s.width, s.height, s.bf, s.th_depth),
+            (d.width, d.height, d.bf, d.th_depth)
+        );
+        assert_eq!(s.dist, [0.0; 5]);
+        assert!(missing.contains(&"Camera.width") && missing.contains(&"Camera.bf"));
+        assert!(!missing.contains(&"DepthMapFactor") && !missing.contains(&"Camera.fx"));
+        // A complete file has nothing missing and parses as strictly.
+        let (full, none) = Settings::parse_lenient(FR3_LIKE, p).unwrap();
+        assert!(none.is_empty(), "{none:?}");
+        assert_eq!(full, Settings::parse(FR3_LIKE, p).unwrap());
+        // The four intrinsics stay required, and bad values are still refused with a line.
+        let e = Settings::parse_lenient("Camera.fx: 500.0\nCamera.fy: 500.0\nCamera.cx: 1.0\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("Camera.cy") && e.contains("missing"), "{e}");
+        let bad = short.replace("DepthMapFactor: 1000.0", "DepthMapFactor: -1.0");
+        let e = Settings::parse_lenient(&bad, p).unwrap_err().to_string();
+        assert!(e.contains("DepthMapFactor") && e.contains(":6"), "{e}");
+    }
 
     /// An ORB-SLAM2-style file with the quirks of the upstream ones: `%YAML:1.0`, comments,
     /// a string key, a repeated key, `key:value` without a space, viewer keys.

@@ -210,6 +210,30 @@ pub fn associate_lists(
         .collect()
 }
 
+/// Every rgb frame with the depth image nearest in time (within `max_diff`; a depth image
+/// may serve several rgb frames; ties go to the earlier depth image). Unlike
+/// [`associate_lists`] no rgb frame is dropped because its depth went to a neighbour, so a
+/// tracking rate can be measured against the full rgb list.
+pub fn associate_nearest(
+    rgb: &[ListEntry],
+    depth: &[ListEntry],
+    max_diff: f64,
+) -> Vec<Association> {
+    rgb.iter()
+        .filter_map(|r| {
+            let d = depth
+                .iter()
+                .min_by(|a, b| (a.t - r.t).abs().total_cmp(&(b.t - r.t).abs()))?;
+            ((d.t - r.t).abs() < max_diff).then(|| Association {
+                t_rgb: r.t,
+                rgb: r.path.clone(),
+                t_depth: d.t,
+                depth: d.path.clone(),
+            })
+        })
+        .collect()
+}
+
 /// Reads a 4-column association file `t_rgb rgb_path t_depth depth_path`. The rgb
 /// timestamps must strictly increase (each frame once).
 pub fn read_associations(path: impl AsRef<Path>) -> Result<Vec<Association>> {
@@ -290,6 +314,28 @@ pub fn resolve_path(dir: &Path, written: &str) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nearest_keeps_every_rgb_frame_unlike_associate() {
+        let e = |t: f64, p: &str| ListEntry {
+            t,
+            path: p.to_string(),
+        };
+        let rgb = [e(1.000, "r1"), e(1.010, "r2"), e(1.035, "r3"), e(2.0, "r4")];
+        let depth = [e(1.004, "d1"), e(1.050, "d2")];
+        let near = associate_nearest(&rgb, &depth, DEFAULT_MAX_DIFF);
+        let got: Vec<(&str, &str)> = near
+            .iter()
+            .map(|a| (a.rgb.as_str(), a.depth.as_str()))
+            .collect();
+        // r1 and r2 share d1; r4 has no depth within 0.02 s.
+        assert_eq!(got, [("r1", "d1"), ("r2", "d1"), ("r3", "d2")]);
+        // associate.py gives d1 to r1 only and drops r2.
+        let unique = associate_lists(&rgb, &depth, 0.0, DEFAULT_MAX_DIFF);
+        let got: Vec<&str> = unique.iter().map(|a| a.rgb.as_str()).collect();
+        assert_eq!(got, ["r1", "r3"]);
+        assert_eq!(near[0].t_depth, 1.004);
+    }
 
     fn data_dir() -> Option<PathBuf> {
         let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));

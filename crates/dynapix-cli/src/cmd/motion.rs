@@ -1,7 +1,7 @@
 //! `dynapix motion`: per-pixel motion probability maps for a sequence (paper §3.1, spec §1).
 //!
 //! Reads `association.txt` (or `rgb.txt` + `depth.txt`), the camera (`camera.yaml`, `--camera`,
-//! or the TUM fr3 preset for `rgbd_dataset_freiburg3_*` folders), poses (ground truth with
+//! or the TUM preset of `rgbd_dataset_freiburgN_*` folders), poses (ground truth with
 //! SLERP, or any TUM trajectory) and a background source (`background/` + `depth_bg/`
 //! folders, or a reconstruction from neighbouring frames), and writes
 //! `SEQ_DIR/prob/<rgb file name>` (16-bit, `trunc((1 − P)·1000)`, the reference format) plus
@@ -15,8 +15,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use dynapix_geometry::{PinholeCamera, Se3};
-use dynapix_io::{StampedPose, Trajectory};
+use dynapix_geometry::Se3;
+use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
+use dynapix_io::{Settings, StampedPose, Trajectory};
 use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
 use dynapix_motion::metrics::{RocAccumulator, psnr_masked};
 use dynapix_motion::{
@@ -143,55 +144,6 @@ struct FrameInfo {
     mask: PathBuf,
 }
 
-/// Camera, depth factor, and image size when the file states it.
-type CameraSettings = (PinholeCamera, f64, Option<(u32, u32)>);
-
-/// Camera intrinsics and depth scale read from an ORB-SLAM2 settings file.
-fn read_camera_yaml(path: &Path) -> anyhow::Result<CameraSettings> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut kv = HashMap::new();
-    for (no, line) in text.lines().enumerate() {
-        let line = line.split('#').next().unwrap_or("").trim();
-        if line.is_empty() || line.starts_with('%') || line.starts_with("---") {
-            continue;
-        }
-        if let Some((k, v)) = line.split_once(':') {
-            let v = v.trim().trim_matches('"');
-            if let Ok(x) = v.parse::<f64>() {
-                kv.insert(k.trim().to_string(), (x, no + 1));
-            }
-        }
-    }
-    let get = |k: &str| -> anyhow::Result<f64> {
-        kv.get(k)
-            .map(|v| v.0)
-            .with_context(|| format!("{}: missing key {k}", path.display()))
-    };
-    let opt = |k: &str| kv.get(k).map(|v| v.0).unwrap_or(0.0);
-    let size = match (kv.get("Camera.width"), kv.get("Camera.height")) {
-        (Some(w), Some(h)) => Some((w.0 as u32, h.0 as u32)),
-        _ => None,
-    };
-    let mut cam = PinholeCamera::new(
-        size.map_or(0, |s| s.0),
-        size.map_or(0, |s| s.1),
-        get("Camera.fx")?,
-        get("Camera.fy")?,
-        get("Camera.cx")?,
-        get("Camera.cy")?,
-    );
-    cam.dist = [
-        opt("Camera.k1"),
-        opt("Camera.k2"),
-        opt("Camera.p1"),
-        opt("Camera.p2"),
-        opt("Camera.k3"),
-    ];
-    let factor = kv.get("DepthMapFactor").map_or(5000.0, |v| v.0);
-    Ok((cam, factor, size))
-}
-
 /// Replaces the first path component equal to `from` by `to` (e.g. `rgb/1.png` →
 /// `background/1.png`), as the reference derives the background path from the rgb path.
 fn sibling(dir: &Path, written: &str, from: &str, to: &str) -> PathBuf {
@@ -292,28 +244,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let n = frames.len();
 
     // Camera.
+    // `--camera FILE`, else SEQ_DIR/camera.yaml, else the TUM preset of a
+    // `rgbd_dataset_freiburgN_*` folder. Short files are accepted (missing keys take the
+    // TUM values); without a stated image size the first frame's size is used.
     let cam_path = args
         .camera
         .clone()
-        .unwrap_or_else(|| seq.join("camera.yaml"));
-    let (mut cam, depth_factor, yaml_size) = if cam_path.exists() {
-        read_camera_yaml(&cam_path)?
-    } else if seq
-        .canonicalize()
-        .ok()
-        .and_then(|p| p.file_name().map(|s| s.to_string_lossy().to_string()))
-        .is_some_and(|s| s.starts_with("rgbd_dataset_freiburg3"))
-    {
-        (PinholeCamera::tum_fr3(), 5000.0, Some((640, 480)))
+        .unwrap_or_else(|| seq.join(SEQUENCE_SETTINGS_FILE));
+    let (settings, size_stated) = if args.camera.is_some() || cam_path.is_file() {
+        let (s, missing) = Settings::read_lenient(&cam_path)
+            .with_context(|| format!("cannot use camera settings {}", cam_path.display()))?;
+        let stated = !missing.contains(&"Camera.width") && !missing.contains(&"Camera.height");
+        (s, stated)
     } else {
-        bail!(
-            "cannot tell the camera: no {} (give --camera FILE)",
-            cam_path.display()
-        );
+        let s = Settings::for_sequence_dir(&seq).with_context(|| {
+            format!(
+                "cannot tell the camera: no {} (give --camera FILE)",
+                cam_path.display()
+            )
+        })?;
+        (s, true)
     };
+    let depth_factor = settings.depth_map_factor;
+    let mut cam = settings.camera();
     let first_size = image::image_dimensions(&frames[0].rgb)
         .with_context(|| format!("reading {}", frames[0].rgb.display()))?;
-    if yaml_size.is_none() {
+    if !size_stated {
         cam.width = first_size.0;
         cam.height = first_size.1;
     }

@@ -232,8 +232,8 @@ fn slam_pass(
     let settings = slam::resolve_settings(&sa)?;
     let frames = slam::load_frames(&sa)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let extractor = OrbExtractor::new(settings.orb.clone()).context("bad ORB settings")?;
-    let mut system = System::new(slam::Orb(extractor), settings.camera.clone(), params);
+    let extractor = OrbExtractor::new(slam::orb_params(&settings)?).context("bad ORB settings")?;
+    let mut system = System::new(slam::Orb(extractor), slam::rgbd_camera(&settings), params);
     if !sa.no_vocabulary {
         let vocab = match &sa.vocabulary {
             Some(p) => Vocabulary::load(p)
@@ -244,7 +244,7 @@ fn slam_pass(
     }
     let (tx, rx) = sync_channel::<Loaded>(4);
     let dir = args.seq_dir.clone();
-    let depth_factor = settings.depth_factor;
+    let depth_factor = settings.depth_map_factor;
     let list = frames.clone();
     let prob_dir = prob_dir.map(Path::to_path_buf);
     let mask_dir = mask_dir.map(Path::to_path_buf);

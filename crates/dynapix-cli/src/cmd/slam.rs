@@ -6,13 +6,14 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
 
 use anyhow::{Context, bail};
-use dynapix_geometry::PinholeCamera;
 use dynapix_io::images::read_rgbd;
+use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
 use dynapix_io::trajectory::write_status;
 use dynapix_io::tum::{
-    DEFAULT_MAX_DIFF, associate_lists, read_associations, read_list, resolve_path,
+    DEFAULT_MAX_DIFF, associate_lists, associate_nearest, read_associations, read_list,
+    resolve_path,
 };
-use dynapix_io::{Association, FrameStatus, ListEntry, StampedPose, StampedStatus, Trajectory};
+use dynapix_io::{Association, FrameStatus, Settings, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
@@ -78,143 +79,71 @@ pub struct Args {
     pub max_frames: Option<usize>,
 }
 
-/// Everything read from a settings file or preset.
-#[derive(Clone, Debug)]
-pub(crate) struct Settings {
-    pub(crate) camera: RgbdCamera,
-    pub(crate) depth_factor: f64,
-    pub(crate) orb: OrbParams,
-}
-
-fn preset(p: CameraPreset) -> Settings {
-    let (fx, fy, cx, cy, dist, depth_factor, nfeatures) = match p {
-        CameraPreset::Tum1 => (
-            517.306408,
-            516.469215,
-            318.643040,
-            255.313989,
-            [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
-            5000.0,
-            1000,
-        ),
-        CameraPreset::Tum2 => (
-            520.908620,
-            521.007327,
-            325.141442,
-            249.701764,
-            [0.231222, -0.784899, -0.003257, -0.000105, 0.917205],
-            5208.0,
-            1000,
-        ),
-        CameraPreset::Tum3 => (535.4, 539.2, 320.1, 247.6, [0.0; 5], 5000.0, 1000),
-        CameraPreset::Grade => (325.9103, 399.3103, 320.0, 240.0, [0.0; 5], 1000.0, 3000),
-    };
-    let mut pin = PinholeCamera::new(640, 480, fx, fy, cx, cy);
-    pin.dist = dist;
-    Settings {
-        camera: RgbdCamera::new(pin, 40.0, 40.0, 30.0),
-        depth_factor,
-        orb: OrbParams {
-            nfeatures,
-            ..OrbParams::default()
-        },
-    }
-}
-
-/// Minimal reader of ORB-SLAM2 settings (`key: value` lines; `%YAML` header and comments
-/// ignored). Missing camera keys are an error; other keys default to ORB-SLAM2's values.
-fn read_settings(path: &Path) -> anyhow::Result<Settings> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read settings {}", path.display()))?;
-    let mut kv = std::collections::HashMap::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.split('#').next().unwrap_or("").trim();
-        if line.is_empty() || line.starts_with('%') || line == "---" {
-            continue;
-        }
-        if let Some((k, v)) = line.split_once(':') {
-            let v = v.trim();
-            if v.is_empty() {
-                continue;
-            }
-            if let Ok(x) = v.parse::<f64>() {
-                kv.insert(k.trim().to_string(), x);
-            } else {
-                tracing::debug!("{}:{}: ignoring non-numeric key {k}", path.display(), n + 1);
-            }
+impl CameraPreset {
+    /// The `dynapix_io` preset of the same name.
+    fn settings(self) -> Settings {
+        match self {
+            CameraPreset::Tum1 => Settings::tum1(),
+            CameraPreset::Tum2 => Settings::tum2(),
+            CameraPreset::Tum3 => Settings::tum3(),
+            CameraPreset::Grade => Settings::grade(),
         }
     }
-    let get = |k: &str| -> anyhow::Result<f64> {
-        kv.get(k)
-            .copied()
-            .with_context(|| format!("{}: missing key {k}", path.display()))
-    };
-    let opt = |k: &str, d: f64| kv.get(k).copied().unwrap_or(d);
-    let mut pin = PinholeCamera::new(
-        opt("Camera.width", 640.0) as u32,
-        opt("Camera.height", 480.0) as u32,
-        get("Camera.fx")?,
-        get("Camera.fy")?,
-        get("Camera.cx")?,
-        get("Camera.cy")?,
-    );
-    pin.dist = [
-        opt("Camera.k1", 0.0),
-        opt("Camera.k2", 0.0),
-        opt("Camera.p1", 0.0),
-        opt("Camera.p2", 0.0),
-        opt("Camera.k3", 0.0),
-    ];
-    let camera = RgbdCamera::new(
-        pin,
-        opt("Camera.bf", 40.0),
-        opt("ThDepth", 40.0),
-        opt("Camera.fps", 30.0),
-    );
-    let d = OrbParams::default();
-    Ok(Settings {
-        camera,
-        depth_factor: opt("DepthMapFactor", 5000.0),
-        orb: OrbParams {
-            nfeatures: opt("ORBextractor.nFeatures", d.nfeatures as f64) as usize,
-            scale_factor: opt("ORBextractor.scaleFactor", d.scale_factor as f64) as f32,
-            nlevels: opt("ORBextractor.nLevels", d.nlevels as f64) as usize,
-            ini_th_fast: opt("ORBextractor.iniThFAST", d.ini_th_fast as f64) as u8,
-            min_th_fast: opt("ORBextractor.minThFAST", d.min_th_fast as f64) as u8,
-        },
-    })
 }
 
+/// Reads a settings file with `dynapix_io`'s validation; keys other than `Camera.fx fy cx
+/// cy` may be missing and take the TUM values, as this command has always allowed.
+pub(crate) fn read_settings(path: &Path) -> anyhow::Result<Settings> {
+    let (settings, missing) = Settings::read_lenient(path)
+        .with_context(|| format!("cannot use settings {}", path.display()))?;
+    if !missing.is_empty() {
+        tracing::debug!(
+            "{}: missing keys take the TUM values: {}",
+            path.display(),
+            missing.join(", ")
+        );
+    }
+    Ok(settings)
+}
+
+/// The settings of a run: `--settings`, else `--camera`, else the folder's `camera.yaml`,
+/// else the preset of a `rgbd_dataset_freiburgN_*` folder, else an error.
 pub(crate) fn resolve_settings(args: &Args) -> anyhow::Result<Settings> {
     if let Some(p) = &args.settings {
         return read_settings(p);
     }
     if let Some(c) = args.camera {
-        return Ok(preset(c));
+        return Ok(c.settings());
     }
-    let own = args.seq_dir.join("camera.yaml");
-    if own.exists() {
+    let own = args.seq_dir.join(SEQUENCE_SETTINGS_FILE);
+    if own.is_file() {
         return read_settings(&own);
     }
-    let name = args
-        .seq_dir
-        .canonicalize()
-        .ok()
-        .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
-        .unwrap_or_default();
-    for (prefix, c) in [
-        ("rgbd_dataset_freiburg1_", CameraPreset::Tum1),
-        ("rgbd_dataset_freiburg2_", CameraPreset::Tum2),
-        ("rgbd_dataset_freiburg3_", CameraPreset::Tum3),
-    ] {
-        if name.starts_with(prefix) {
-            return Ok(preset(c));
-        }
-    }
-    bail!(
-        "cannot tell the camera of {}: pass --camera or --settings (or add camera.yaml)",
-        args.seq_dir.display()
-    )
+    Settings::for_sequence_dir(&args.seq_dir).with_context(|| {
+        format!(
+            "cannot tell the camera of {}: pass --camera or --settings (or add camera.yaml)",
+            args.seq_dir.display()
+        )
+    })
+}
+
+/// The SLAM camera of the settings (intrinsics, distortion, `bf`, `ThDepth`, fps).
+pub(crate) fn rgbd_camera(s: &Settings) -> RgbdCamera {
+    RgbdCamera::new(s.camera(), s.bf, s.th_depth, s.fps)
+}
+
+/// The ORB extractor parameters of the settings.
+pub(crate) fn orb_params(s: &Settings) -> anyhow::Result<OrbParams> {
+    let fast = |v: u32, key: &str| {
+        u8::try_from(v).with_context(|| format!("ORBextractor.{key} {v} does not fit 0..=255"))
+    };
+    Ok(OrbParams {
+        nfeatures: s.orb.n_features,
+        scale_factor: s.orb.scale_factor as f32,
+        nlevels: s.orb.n_levels,
+        ini_th_fast: fast(s.orb.ini_th_fast, "iniThFAST")?,
+        min_th_fast: fast(s.orb.min_th_fast, "minThFAST")?,
+    })
 }
 
 pub(crate) fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
@@ -233,7 +162,7 @@ pub(crate) fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
             if args.unique_association {
                 associate_lists(&rgb, &depth, 0.0, DEFAULT_MAX_DIFF)
             } else {
-                nearest_depth(&rgb, &depth, DEFAULT_MAX_DIFF)
+                associate_nearest(&rgb, &depth, DEFAULT_MAX_DIFF)
             }
         }
     };
@@ -244,25 +173,6 @@ pub(crate) fn load_frames(args: &Args) -> anyhow::Result<Vec<Association>> {
         bail!("{}: no rgb/depth pairs found", dir.display());
     }
     Ok(frames)
-}
-
-/// Every rgb frame with the depth image nearest in time (within `max_diff`; a depth image may
-/// serve two rgb frames), so no rgb frame is skipped and the tracking rate is measured against
-/// the full rgb list. `associate.py`'s one-to-one pairing drops a few frames instead.
-fn nearest_depth(rgb: &[ListEntry], depth: &[ListEntry], max_diff: f64) -> Vec<Association> {
-    rgb.iter()
-        .filter_map(|r| {
-            let d = depth
-                .iter()
-                .min_by(|a, b| (a.t - r.t).abs().total_cmp(&(b.t - r.t).abs()))?;
-            ((d.t - r.t).abs() < max_diff).then(|| Association {
-                t_rgb: r.t,
-                rgb: r.path.clone(),
-                t_depth: d.t,
-                depth: d.path.clone(),
-            })
-        })
-        .collect()
 }
 
 pub(crate) struct Orb(pub(crate) OrbExtractor);
@@ -297,19 +207,19 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Mode::Orbslam2 = args.mode;
     let settings = resolve_settings(&args)?;
-    if !(100.0..=100_000.0).contains(&settings.depth_factor) {
+    if !(100.0..=100_000.0).contains(&settings.depth_map_factor) {
         tracing::warn!(
             "implausible DepthMapFactor {} (expected about 1000-5208)",
-            settings.depth_factor
+            settings.depth_map_factor
         );
     }
     let frames = load_frames(&args)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let extractor = OrbExtractor::new(settings.orb.clone()).context("bad ORB settings")?;
+    let extractor = OrbExtractor::new(orb_params(&settings)?).context("bad ORB settings")?;
     let mut system = System::new(
         Orb(extractor),
-        settings.camera.clone(),
+        rgbd_camera(&settings),
         SystemParams::default(),
     );
     if !args.no_vocabulary {
@@ -324,7 +234,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // Images are decoded on a helper thread, a few frames ahead of tracking.
     let (tx, rx) = sync_channel(4);
     let dir = args.seq_dir.clone();
-    let depth_factor = settings.depth_factor;
+    let depth_factor = settings.depth_map_factor;
     let list = frames.clone();
     let loader = std::thread::spawn(move || {
         for a in list {
