@@ -4,7 +4,7 @@
 //! Optionally, pairs with a stamp outside [start − 1 s, end + 1 s] are skipped, as `eval.py`
 //! does.
 //!
-//! Unlike the Python tool (which builds all n·m candidates), candidates are found with a
+//! Unlike the Python tool (which builds all n·m candidates), `dynapix_io::associate` finds candidates with a
 //! binary search on the sorted second list, so 100 000-pose trajectories associate in
 //! milliseconds; the result is identical, ties included (sorted by difference, then first
 //! stamp, then second stamp, as Python sorts tuples).
@@ -37,59 +37,24 @@ impl Default for AssocParams {
 /// Associates stamps of `first` with stamps of `second`; returns index pairs `(i, j)` sorted by
 /// `first[i]`. Input order does not matter; NaN stamps never match.
 pub fn associate(first: &[f64], second: &[f64], params: &AssocParams) -> Vec<(usize, usize)> {
-    // Sorted view of `second` (by shifted stamp) for range queries.
-    let mut order: Vec<usize> = (0..second.len())
-        .filter(|&j| second.get(j).is_some_and(|t| t.is_finite()))
-        .collect();
-    order.sort_by(|&x, &y| second[x].total_cmp(&second[y]).then(x.cmp(&y)));
-    let shifted: Vec<f64> = order.iter().map(|&j| second[j] + params.offset).collect();
-
+    // The pairing rule itself is `dynapix_io::associate` (the TUM tool's greedy rule); this
+    // layer only adds the evaluation window and drops non-finite stamps first.
     let in_window = |t: f64| match params.window {
         Some((s, e)) => t >= s - params.window_margin && t <= e + params.window_margin,
         None => true,
     };
-
-    // (difference, first stamp, second stamp, i, j): the key Python sorts by, with the
-    // indices making every key unique, so an unstable sort is still deterministic.
-    let mut candidates: Vec<(f64, f64, f64, usize, usize)> = Vec::new();
-    for (i, &a) in first.iter().enumerate() {
-        if !a.is_finite() || !in_window(a) {
-            continue;
-        }
-        // Widen the search range a little: the strict test below decides.
-        let lo = shifted.partition_point(|&b| b < a - params.max_diff * 1.000001 - 1e-12);
-        for (k, &bs) in shifted.iter().enumerate().skip(lo) {
-            if bs > a + params.max_diff * 1.000001 + 1e-12 {
-                break;
-            }
-            let j = order[k];
-            let b = second[j];
-            // Same expression as associate.py: abs(a - (b + offset)).
-            let diff = (a - (b + params.offset)).abs();
-            if diff < params.max_diff && in_window(b) {
-                candidates.push((diff, a, b, i, j));
-            }
-        }
-    }
-    candidates.sort_unstable_by(|x, y| {
-        x.0.total_cmp(&y.0)
-            .then(x.1.total_cmp(&y.1))
-            .then(x.2.total_cmp(&y.2))
-            .then(x.3.cmp(&y.3))
-            .then(x.4.cmp(&y.4))
-    });
-    let mut used_first = vec![false; first.len()];
-    let mut used_second = vec![false; second.len()];
-    let mut matches = Vec::new();
-    for (_, _, _, i, j) in candidates {
-        if !used_first[i] && !used_second[j] {
-            used_first[i] = true;
-            used_second[j] = true;
-            matches.push((i, j));
-        }
-    }
-    matches.sort_by(|x, y| first[x.0].total_cmp(&first[y.0]).then(x.0.cmp(&y.0)));
-    matches
+    let keep = |ts: &[f64]| -> Vec<usize> {
+        (0..ts.len())
+            .filter(|&i| ts[i].is_finite() && in_window(ts[i]))
+            .collect()
+    };
+    let (kept_first, kept_second) = (keep(first), keep(second));
+    let a: Vec<f64> = kept_first.iter().map(|&i| first[i]).collect();
+    let b: Vec<f64> = kept_second.iter().map(|&j| second[j]).collect();
+    dynapix_io::associate(&a, &b, params.offset, params.max_diff)
+        .into_iter()
+        .map(|(i, j)| (kept_first[i], kept_second[j]))
+        .collect()
 }
 
 #[cfg(test)]
