@@ -57,6 +57,23 @@ pub enum MoverKind {
         /// Time offset into the path (s), to desynchronise walkers.
         offset: f32,
     },
+    /// A person who walks from `a` to `b`, turns, sits down on a stool at `b`, stays seated
+    /// for `sit` s, stands up, walks back to `a`, turns and repeats — the sitting down and
+    /// getting up of the TUM fr3 walking sequences. The stool is part of the mover (still).
+    SitStand {
+        /// Start point (x, y) on the floor.
+        a: [f32; 2],
+        /// Stool position (x, y).
+        b: [f32; 2],
+        /// Walking speed (m/s).
+        speed: f32,
+        /// Seconds seated per cycle.
+        sit: f32,
+        /// Time offset into the cycle (s).
+        offset: f32,
+        /// Material of the stool.
+        stool: usize,
+    },
     /// A seated person moving one arm (lifting a cup): `period` s per lift, resting `rest`
     /// fraction of each period; everything else stays still.
     Sitter {
@@ -335,6 +352,67 @@ fn on_path(path: &Path, speed: f32, tw: f32) -> ([f32; 2], f32, f32, f32) {
     }
 }
 
+/// Position, heading, gait phase, gait amplitude and sitting amount (0 standing, 1 seated)
+/// of a [`MoverKind::SitStand`] person at time `t`.
+fn sit_stand(
+    a: [f32; 2],
+    b: [f32; 2],
+    speed: f32,
+    sit: f32,
+    t: f32,
+) -> ([f32; 2], f32, f32, f32, f32) {
+    let dx = b[0] - a[0];
+    let dy = b[1] - a[1];
+    let len = dx.hypot(dy).max(1e-3);
+    let strides = (len / body::STRIDE).round().max(1.0);
+    let stride = len / strides;
+    let walk = len / speed;
+    let (turn, down) = (1.0, 1.2);
+    // walk a→b, turn, sit down, seated, get up, walk b→a, turn
+    let cycle = 2.0 * walk + 2.0 * turn + 2.0 * down + sit;
+    let tc = t.rem_euclid(cycle);
+    let fwd = dy.atan2(dx);
+    let back = fwd + PI;
+    let smooth = |f: f32| f * f * (3.0 - 2.0 * f);
+    let k = TAU / stride;
+    let t1 = walk;
+    let t2 = t1 + turn;
+    let t3 = t2 + down;
+    let t4 = t3 + sit;
+    let t5 = t4 + down;
+    let t6 = t5 + walk;
+    if tc < t1 {
+        let f = tc / walk;
+        (
+            [a[0] + dx * f, a[1] + dy * f],
+            fwd,
+            k * tc * speed,
+            1.0,
+            0.0,
+        )
+    } else if tc < t2 {
+        (b, fwd + PI * smooth((tc - t1) / turn), k * len, 0.0, 0.0)
+    } else if tc < t3 {
+        (b, back, k * len, 0.0, smooth((tc - t2) / down))
+    } else if tc < t4 {
+        (b, back, k * len, 0.0, 1.0)
+    } else if tc < t5 {
+        (b, back, k * len, 0.0, 1.0 - smooth((tc - t4) / down))
+    } else if tc < t6 {
+        let f = (tc - t5) / walk;
+        (
+            [b[0] - dx * f, b[1] - dy * f],
+            back,
+            k * (len + (tc - t5) * speed),
+            1.0,
+            0.0,
+        )
+    } else {
+        let f = (tc - t6) / turn;
+        (a, back + PI * smooth(f), k * 2.0 * len, 0.0, 0.0)
+    }
+}
+
 fn body_frame(pos: [f32; 2], heading: f32) -> Isometry3<f32> {
     // Body +y must point along `heading`, so rotate by heading - 90°.
     iso(
@@ -348,6 +426,7 @@ impl Mover {
     pub fn part_count(&self) -> usize {
         match self.kind {
             MoverKind::Walker { .. } | MoverKind::Sitter { .. } => 10,
+            MoverKind::SitStand { .. } => 11,
             MoverKind::Flyer { .. } | MoverKind::Passer { .. } => 1,
         }
     }
@@ -368,6 +447,40 @@ impl Mover {
                 let mut body = body_frame(pos, heading);
                 body.translation.vector.z += bob - 0.015 * amp;
                 person_parts(&body, body::HIP_Z, &pose, &self.look, out);
+            }
+            MoverKind::SitStand {
+                a,
+                b,
+                speed,
+                sit,
+                offset,
+                stool,
+            } => {
+                let (pos, heading, phi, amp, s) = sit_stand(*a, *b, *speed, *sit, t + offset);
+                let mut pose = gait(phi, amp);
+                // Seated pose as for `Sitter`, blended in while sitting down / getting up.
+                for side in 0..2 {
+                    pose.hip[side] += s * FRAC_PI_2;
+                    pose.knee[side] += s * (FRAC_PI_2 - pose.knee[side]);
+                    pose.elbow[side] += s * 0.5;
+                    pose.shoulder[side] += s * 0.2;
+                }
+                let hip_z = body::HIP_Z + s * (body::SEAT_Z + body::THIGH_R - body::HIP_Z);
+                let bob = 0.015 * amp * (2.0 * phi).cos().abs();
+                let mut bodyf = body_frame(pos, heading);
+                bodyf.translation.vector.z += bob - 0.015 * amp;
+                person_parts(&bodyf, hip_z, &pose, &self.look, out);
+                // The stool stands at `b` behind the hips of the seated person.
+                let h = body::SEAT_Z * 0.5;
+                let stool_pose = body_frame(*b, heading)
+                    * iso(Vector3::new(0.0, -0.2, h), UnitQuaternion::identity());
+                out.push(Primitive::new(
+                    Shape::Box {
+                        half: Vector3::new(0.2, 0.14, h),
+                    },
+                    stool_pose,
+                    *stool,
+                ));
             }
             MoverKind::Sitter {
                 seat,
@@ -471,6 +584,42 @@ mod tests {
                 .fold(f32::INFINITY, f32::min);
             assert!(lowest > -0.12 && lowest < 0.1, "frame {i}: lowest {lowest}");
         }
+    }
+
+    #[test]
+    fn sit_stander_sits_down_gets_up_and_keeps_feet_near_the_floor() {
+        let m = Mover {
+            kind: MoverKind::SitStand {
+                a: [0.7, 1.1],
+                b: [-0.3, -0.15],
+                speed: 0.7,
+                sit: 2.0,
+                offset: 0.0,
+                stool: 0,
+            },
+            look: look(),
+        };
+        let (mut low_head, mut high_head) = (f32::INFINITY, f32::NEG_INFINITY);
+        for i in 0..400 {
+            let mut parts = Vec::new();
+            m.parts(i as f32 / 30.0, &mut parts);
+            assert_eq!(parts.len(), m.part_count());
+            // Person parts only (the stool is the last part and stands on the floor).
+            let lowest = parts[..10]
+                .iter()
+                .flat_map(|p| p.world_corners())
+                .map(|c| c.z)
+                .fold(f32::INFINITY, f32::min);
+            assert!(
+                lowest > -0.12 && lowest < 0.12,
+                "frame {i}: lowest {lowest}"
+            );
+            let head = parts[1].pose.translation.vector.z;
+            low_head = low_head.min(head);
+            high_head = high_head.max(head);
+        }
+        // Seated, the head is about 0.3 m lower than standing.
+        assert!(high_head - low_head > 0.25, "head {low_head}..{high_head}");
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! procedural texture chosen deterministically from the scene seed, and the lights.
 //!
 //! World frame: z up, floor at `z = 0`; the room spans `x ∈ [-2.6, 2.6]`, `y ∈ [-2.0, 2.6]`,
-//! `z ∈ [0, 2.7]`. The free floor `x ∈ [-1.0, 1.6]`, `y ∈ [0.2, 1.9]` is kept clear for walking
+//! `z ∈ [0, 2.7]`. The free floor `x ∈ [-1.3, 1.4]`, `y ∈ [-0.5, 1.9]` is kept clear for walking
 //! people; the sitting places are the two chairs behind the left table, facing `-y`.
 
 use crate::movers::PersonLook;

@@ -35,7 +35,8 @@ pub const UNKNOWN_FLOW: f32 = 1e10;
 pub enum Preset {
     /// Static room, hand-held camera, no movers.
     Static,
-    /// Two walking people (one stands first) and a seated one; camera `xyz`.
+    /// Two people close to the camera (1–2.5 m, TUM-like share of the image): one walks
+    /// back and forth across the view, one walks up, sits down on a stool and gets up; camera `xyz`.
     WalkingXyz,
     /// As `WalkingXyz` with a nearly static camera.
     WalkingStatic,
@@ -252,15 +253,17 @@ pub fn preset_movers(preset: Preset, scene: &Scene, seed: u64) -> Vec<Mover> {
         },
         look: looks[0],
     };
-    let stand_then_walk = |rng: &mut ChaCha8Rng| Mover {
-        kind: MoverKind::Walker {
-            path: Path::Ellipse {
-                centre: [0.5, 1.4],
-                radii: [0.8, 0.42],
-            },
-            speed: rng.random_range(0.55..0.75),
-            start_delay: rng.random_range(2.0..3.0),
-            offset: 0.0,
+    // TUM fr3 walking: two people 1–2.5 m in front of the camera (base eye at y = -1.5,
+    // looking along +y), one crossing the view back and forth, one walking towards the
+    // camera, sitting down on a stool and getting up again.
+    let sit_stander = |rng: &mut ChaCha8Rng, stool: usize| Mover {
+        kind: MoverKind::SitStand {
+            a: [0.7, 1.1],
+            b: [-0.3, -0.15],
+            speed: rng.random_range(0.6..0.8),
+            sit: rng.random_range(2.0..3.5),
+            offset: rng.random_range(0.0..4.0),
+            stool,
         },
         look: looks[1],
     };
@@ -280,9 +283,8 @@ pub fn preset_movers(preset: Preset, scene: &Scene, seed: u64) -> Vec<Mover> {
         | Preset::WalkingStatic
         | Preset::WalkingRpy
         | Preset::WalkingHalfsphere => vec![
-            walker1(&mut rng, [-1.7, 0.45], [1.3, 0.85]),
-            stand_then_walk(&mut rng),
-            sitter(&mut rng, -1.0, looks[2]),
+            walker1(&mut rng, [-1.2, 0.05], [1.15, 0.4]),
+            sit_stander(&mut rng, obj(1)),
         ],
         Preset::Sitting => vec![
             sitter(&mut rng, -1.8, looks[2]),
@@ -840,6 +842,29 @@ mod tests {
         assert_eq!(fa.mask, fb.mask);
         assert_eq!(qa, qb);
         assert_ne!(fa.rgb, fc.rgb);
+    }
+
+    #[test]
+    fn walking_presets_cover_a_tum_like_share_of_the_image() {
+        // TUM fr3 walking: two people 1–2.5 m away, often 20–50 % of the image. Averaged over
+        // 6 s the moving pixels (255) must cover roughly 15–40 %.
+        for preset in [Preset::WalkingXyz, Preset::WalkingHalfsphere] {
+            let mut p = small(preset, 0, SensorParams::clean());
+            p.frames = 180;
+            let seq = Sequence::new(p).expect("sequence");
+            let (mut moving, mut total) = (0usize, 0usize);
+            for i in (0..180).step_by(12) {
+                let (f, _) = seq.frame(i, None);
+                moving += f.mask.as_raw().iter().filter(|&&m| m == 255).count();
+                total += f.mask.as_raw().len();
+            }
+            let share = moving as f64 / total as f64;
+            assert!(
+                (0.12..0.45).contains(&share),
+                "{}: moving share {share}",
+                preset.name()
+            );
+        }
     }
 
     #[test]
