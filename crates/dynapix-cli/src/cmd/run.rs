@@ -463,6 +463,11 @@ fn motion(args: &Args, seq: &Path, poses: &str, terms: &str) -> anyhow::Result<(
     }
     if let Some(s) = &args.settings {
         cmd.arg("--camera").arg(s);
+    } else if !seq.join("camera.yaml").exists() {
+        // The shadow folder's name no longer tells the camera (e.g. rgbd_dataset_freiburg1_*),
+        // so hand `dynapix motion` the camera this run resolved from the original folder.
+        let settings = slam::resolve_settings(&slam_args(args, &args.out)?)?;
+        settings.write(seq.join("camera.yaml"))?;
     }
     tracing::info!("running {cmd:?}");
     let st = cmd.status().context("cannot start dynapix motion")?;
