@@ -144,24 +144,3 @@ fn fr1_xyz_accuracy_tracking_rate_and_determinism() {
         assert!(x == y, "{f} differs between two runs");
     }
 }
-
-/// Evaluates an existing trajectory: `DYNAPIX_ATE_EST=path [DYNAPIX_ATE_GT=groundtruth]
-/// cargo test … ate_of_file -- --ignored` (ground truth defaults to fr1_xyz's).
-#[test]
-#[ignore]
-fn ate_of_file() {
-    let Ok(p) = std::env::var("DYNAPIX_ATE_EST") else {
-        return;
-    };
-    let gt_path = match std::env::var("DYNAPIX_ATE_GT") {
-        Ok(g) => PathBuf::from(g),
-        Err(_) => match fr1_xyz() {
-            Some(seq) => seq.join("groundtruth.txt"),
-            None => return,
-        },
-    };
-    let est = read_poses(Path::new(&p));
-    let gt = read_poses(&gt_path);
-    let (ate, pairs) = ate_rmse(&est, &gt);
-    eprintln!("ATE RMSE {ate:.5} m over {pairs} poses");
-}
