@@ -419,6 +419,33 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
     ]
 }
 
+/// Start offsets into B and A and the bilinear fractions of an 8×8 patch at (x, y) / (px, py),
+/// or `None` when any row the SIMD kernels read would leave the buffers. Checking the ranges
+/// once here keeps their loops free of bounds checks and makes their unchecked loads sound.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn patch_8_window(
+    ctx: &LevelCtx,
+    px: usize,
+    py: usize,
+    x: f32,
+    y: f32,
+) -> Option<(usize, usize, f32, f32)> {
+    const N: usize = 8;
+    let (aw, bw) = (ctx.a.w, ctx.bp.w);
+    let (x0, y0) = (x as usize, y as usize);
+    let b_end = (y0 + N) * bw + x0 + N + 1;
+    let a_end = (py + N - 1) * aw + px + N;
+    if b_end > ctx.bp.data.len()
+        || a_end > ctx.a.data.len()
+        || a_end > ctx.ax.data.len()
+        || a_end > ctx.ay.data.len()
+    {
+        return None;
+    }
+    Some((y0 * bw + x0, py * aw + px, x - x0 as f32, y - y0 as f32))
+}
+
 /// [`patch_sums`] for 8×8 patches with SSE2 (part of every x86-64 CPU): two 4-lane vectors
 /// per row. Lane order and summation order equal the portable version's.
 #[cfg(target_arch = "x86_64")]
@@ -427,22 +454,10 @@ fn patch_sums_8_sse(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
     use std::arch::x86_64::*;
     const N: usize = 8;
     let (aw, bw) = (ctx.a.w, ctx.bp.w);
-    let (x0, y0) = (x as usize, y as usize);
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
     let b = &ctx.bp.data;
-    // Every row read below lies inside these ranges; checking them once keeps the loop
-    // free of bounds checks and makes the unchecked loads sound.
-    let b_start = y0 * bw + x0;
-    let b_end = (y0 + N) * bw + x0 + N + 1;
-    let a_start = py * aw + px;
-    let a_end = (py + N - 1) * aw + px + N;
-    if b_end > b.len()
-        || a_end > ctx.a.data.len()
-        || a_end > ctx.ax.data.len()
-        || a_end > ctx.ay.data.len()
-    {
+    let Some((b_start, a_start, fx, fy)) = patch_8_window(ctx, px, py, x, y) else {
         return [0.0; 4];
-    }
+    };
     let (bp, ap) = (b.as_ptr(), ctx.a.data.as_ptr());
     let (gxp, gyp) = (ctx.ax.data.as_ptr(), ctx.ay.data.as_ptr());
     let lanes = |v: __m128| -> [f32; 4] {
@@ -499,20 +514,10 @@ fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
     use std::arch::x86_64::*;
     const N: usize = 8;
     let (aw, bw) = (ctx.a.w, ctx.bp.w);
-    let (x0, y0) = (x as usize, y as usize);
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
     let b = &ctx.bp.data;
-    let b_start = y0 * bw + x0;
-    let b_end = (y0 + N) * bw + x0 + N + 1;
-    let a_start = py * aw + px;
-    let a_end = (py + N - 1) * aw + px + N;
-    if b_end > b.len()
-        || a_end > ctx.a.data.len()
-        || a_end > ctx.ax.data.len()
-        || a_end > ctx.ay.data.len()
-    {
+    let Some((b_start, a_start, fx, fy)) = patch_8_window(ctx, px, py, x, y) else {
         return [0.0; 4];
-    }
+    };
     let (bp, ap) = (b.as_ptr(), ctx.a.data.as_ptr());
     let (gxp, gyp) = (ctx.ax.data.as_ptr(), ctx.ay.data.as_ptr());
     let w00 = _mm256_set1_ps((1.0 - fx) * (1.0 - fy));
