@@ -6,6 +6,7 @@ pub mod dynapix;
 pub mod features;
 pub mod frame;
 pub mod local_mapping;
+pub mod loop_closing;
 pub mod map;
 pub mod matcher;
 pub mod orb;

@@ -1,0 +1,1 @@
+//! Loop correction: pose propagation, loop fusion, essential graph and global bundle adjustment.

@@ -1,0 +1,1 @@
+//! Loop detection: keyframe database, candidates, consistency groups and the SE3 estimate.
