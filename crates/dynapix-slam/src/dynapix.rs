@@ -194,6 +194,9 @@ impl SystemParams {
         self.tracking.pose.weight_mode = mode;
         self.mapping.ba.weight_mode = mode;
         self.mapping.ba.weight_clamp = ba_weight_clamp(&p);
+        // Global BA after a loop uses the same per-edge weights as local BA (spec §2.7).
+        self.loop_closing.correction.ba.weight_mode = mode;
+        self.loop_closing.correction.ba.weight_clamp = ba_weight_clamp(&p);
         self.map.dynapix = p;
         self
     }

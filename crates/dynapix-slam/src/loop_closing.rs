@@ -30,3 +30,113 @@ pub struct LoopMatch {
     /// deterministic order (fused into the corrected neighbourhood of the current keyframe).
     pub loop_points: Vec<MapPointId>,
 }
+
+use crate::frame::RgbdCamera;
+use crate::map::Map;
+use crate::vocab::Vocabulary;
+use correct::{CorrectionParams, CorrectionStats, correct_loop};
+use detect::{DetectionParams, LoopDetector};
+
+/// Parameters of loop closing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopClosingParams {
+    /// Run loop closing at all (`--no-loop-closing` turns it off).
+    pub enabled: bool,
+    /// Detection and SE3 estimation.
+    pub detection: DetectionParams,
+    /// Correction, essential graph and global BA.
+    pub correction: CorrectionParams,
+}
+
+impl Default for LoopClosingParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            detection: DetectionParams::default(),
+            correction: CorrectionParams::default(),
+        }
+    }
+}
+
+/// One closed loop, for logs and reports.
+#[derive(Clone, Debug)]
+pub struct LoopEvent {
+    /// Keyframe that closed the loop.
+    pub current: KeyFrameId,
+    /// Its timestamp.
+    pub current_timestamp: f64,
+    /// The matched old keyframe.
+    pub loop_kf: KeyFrameId,
+    /// Its timestamp.
+    pub loop_timestamp: f64,
+    /// Keypoints of the current keyframe matched to loop-side map points.
+    pub matched_points: usize,
+    /// What the correction did and how long it took.
+    pub correction: CorrectionStats,
+}
+
+/// The loop-closing stage (ORB-SLAM2 `LoopClosing`), stepped once per new keyframe after local
+/// mapping.
+pub struct LoopCloser {
+    /// Parameters.
+    pub params: LoopClosingParams,
+    cam: RgbdCamera,
+    detector: LoopDetector,
+    events: Vec<LoopEvent>,
+}
+
+impl LoopCloser {
+    /// A loop closer for `cam`.
+    pub fn new(cam: RgbdCamera, params: LoopClosingParams) -> Self {
+        Self {
+            detector: LoopDetector::new(cam.clone(), params.detection.clone()),
+            cam,
+            params,
+            events: Vec::new(),
+        }
+    }
+
+    /// Forgets the keyframe database and the candidate groups (map reset); closed loops stay
+    /// in the log.
+    pub fn reset(&mut self) {
+        self.detector.reset();
+    }
+
+    /// Looks for a loop at keyframe `kf` and closes it. Returns the event when one was closed.
+    pub fn step(
+        &mut self,
+        map: &mut Map,
+        kf: KeyFrameId,
+        vocab: Option<&Vocabulary>,
+    ) -> Option<LoopEvent> {
+        if !self.params.enabled {
+            return None;
+        }
+        let m = self.detector.detect(map, kf, vocab)?;
+        let current_timestamp = map.keyframe(m.current)?.timestamp;
+        let loop_timestamp = map.keyframe(m.loop_kf)?.timestamp;
+        let correction = correct_loop(map, &self.cam, &m, &self.params.correction);
+        self.detector.loop_closed(map, m.current);
+        let event = LoopEvent {
+            current: m.current,
+            current_timestamp,
+            loop_kf: m.loop_kf,
+            loop_timestamp,
+            matched_points: m.matched_points.iter().flatten().count(),
+            correction,
+        };
+        tracing::info!(
+            "loop closed: keyframe at {:.3} s ↔ {:.3} s, {} matches",
+            event.current_timestamp,
+            event.loop_timestamp,
+            event.matched_points
+        );
+        self.events.push(event.clone());
+        Some(event)
+    }
+
+    /// Loops closed so far, in order.
+    pub fn events(&self) -> &[LoopEvent] {
+        &self.events
+    }
+}

@@ -1,5 +1,5 @@
 //! The SLAM system: owns the map and the stages and runs them in a fixed order per frame
-//! (feature extraction, tracking, then local mapping on a new keyframe), so the same input
+//! (feature extraction, tracking, then local mapping and loop closing on a new keyframe), so the same input
 //! always gives the same trajectory (design §7, spec §7.22). Frame poses are stored relative
 //! to their reference keyframe and recomposed on demand, so later BA corrections reach them
 //! (ORB-SLAM2 `SaveTrajectoryTUM`).
@@ -12,6 +12,7 @@ use image::GrayImage;
 use crate::features::{Descriptor, KeyPoint};
 use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid, WeightImage};
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
+use crate::loop_closing::{LoopCloser, LoopClosingParams, LoopEvent};
 use crate::map::{KeyFrameId, Map, MapParams};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
 use crate::vocab::Vocabulary;
@@ -33,6 +34,8 @@ pub struct SystemParams {
     pub mapping: LocalMappingParams,
     /// Map bookkeeping.
     pub map: MapParams,
+    /// Loop closing.
+    pub loop_closing: LoopClosingParams,
 }
 
 /// One input frame.
@@ -58,6 +61,8 @@ pub struct StepTimes {
     pub track: f64,
     /// Local mapping (0 when no keyframe was created).
     pub mapping: f64,
+    /// Loop closing: detection, and correction when a loop was closed (0 without a keyframe).
+    pub loop_closing: f64,
 }
 
 /// Result of processing one frame.
@@ -86,6 +91,8 @@ pub struct FrameResult {
     pub times: StepTimes,
     /// Local-mapping counters when a keyframe was processed.
     pub mapping: Option<MappingStats>,
+    /// The loop closed at this frame's keyframe, if any.
+    pub loop_closure: Option<LoopEvent>,
 }
 
 /// One trajectory entry.
@@ -117,6 +124,7 @@ pub struct System<E> {
     map: Map,
     tracker: Tracker,
     mapper: LocalMapper,
+    closer: LoopCloser,
     records: Vec<Record>,
     next_index: u64,
     vocab: Option<Vocabulary>,
@@ -131,6 +139,7 @@ impl<E: FeatureExtractor> System<E> {
             map: Map::new(pyramid, params.map.clone()),
             tracker: Tracker::new(cam.clone(), params.tracking.clone()),
             mapper: LocalMapper::new(cam.clone(), params.mapping.clone()),
+            closer: LoopCloser::new(cam.clone(), params.loop_closing.clone()),
             extractor,
             cam,
             records: Vec::new(),
@@ -161,7 +170,8 @@ impl<E: FeatureExtractor> System<E> {
         self.tracker.state()
     }
 
-    /// Processes one frame: extraction, tracking, then local mapping on a new keyframe.
+    /// Processes one frame: extraction, tracking, then local mapping and loop closing on a new
+    /// keyframe.
     pub fn process(&mut self, input: FrameInput<'_>) -> FrameResult {
         let index = self.next_index;
         self.next_index += 1;
@@ -191,12 +201,20 @@ impl<E: FeatureExtractor> System<E> {
             mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
         }
         let t3 = Instant::now();
+        let mut loop_closure = None;
+        if let Some(kf) = out.new_keyframe
+            && self.map.keyframe(kf).is_some()
+        {
+            loop_closure = self.closer.step(&mut self.map, kf, self.vocab.as_ref());
+        }
+        let t4 = Instant::now();
         let mut reset = false;
         if out.reset_requested {
             self.freeze_records();
             self.map.clear();
             self.tracker.reset();
             self.mapper.reset();
+            self.closer.reset();
             reset = true;
         }
         let relative = match (out.pose, out.reference) {
@@ -225,8 +243,10 @@ impl<E: FeatureExtractor> System<E> {
                 extract: (t1 - t0).as_secs_f64(),
                 track: (t2 - t1).as_secs_f64(),
                 mapping: (t3 - t2).as_secs_f64(),
+                loop_closing: (t4 - t3).as_secs_f64(),
             },
             mapping,
+            loop_closure,
         }
     }
 
@@ -263,6 +283,11 @@ impl<E: FeatureExtractor> System<E> {
                 }
             })
             .collect()
+    }
+
+    /// Loops closed so far, in order.
+    pub fn loop_events(&self) -> &[LoopEvent] {
+        self.closer.events()
     }
 
     /// Keyframes in the map, sorted by creation: `(timestamp, T_wc)`.

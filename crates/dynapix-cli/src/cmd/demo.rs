@@ -136,6 +136,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 max_frames: None,
                 settings: None,
                 allow_missing_prob: false,
+                no_loop_closing: false,
                 quiet: false,
             };
             if method == Method::Dynapix && !args.oracle_poses {

@@ -84,6 +84,7 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         max_frames: a.max_frames,
         settings: None,
         allow_missing_prob: false,
+        no_loop_closing: false,
         quiet: true,
     }
 }

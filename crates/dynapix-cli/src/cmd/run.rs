@@ -158,6 +158,9 @@ pub struct Args {
     /// stopping with an error (e.g. when `dynapix motion` associated rgb and depth differently).
     #[arg(long)]
     pub allow_missing_prob: bool,
+    /// Turn loop closing off (ORB-SLAM2's loop closer runs by default).
+    #[arg(long)]
+    pub no_loop_closing: bool,
     /// Hide progress bars.
     #[arg(long)]
     pub quiet: bool,
@@ -352,11 +355,13 @@ fn slam_pass(
             .collect(),
     );
     kfs.write_tum(out.join("keyframes.txt"))?;
+    slam::write_loops(&out.join("loops.txt"), system.loop_events())?;
     let tracked = status
         .iter()
         .filter(|s| s.status == FrameStatus::Tracked)
         .count();
     Ok(json!({
+        "loops_closed": system.loop_events().len(),
         "frames": status.len(),
         "tracked": tracked,
         "keyframes": system.map().num_keyframes(),
@@ -640,6 +645,8 @@ pub fn execute(args: &Args) -> anyhow::Result<RunOutcome> {
         }
         _ => params.with_dynapix(dp.clone()),
     };
+    params.loop_closing.enabled = !args.no_loop_closing;
+    record["loop_closing"] = json!(!args.no_loop_closing);
     let mask_dir = if args.method == Method::DynapixPlus {
         let d = args
             .masks

@@ -17,6 +17,7 @@ use dynapix_io::{Association, FrameStatus, Settings, StampedPose, StampedStatus,
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
+use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::system::{FeatureExtractor, FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
@@ -77,6 +78,9 @@ pub struct Args {
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Turn loop closing off (on by default; closed loops are listed in `OUT/loops.txt`).
+    #[arg(long)]
+    pub no_loop_closing: bool,
 }
 
 impl CameraPreset {
@@ -217,11 +221,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let extractor = OrbExtractor::new(orb_params(&settings)?).context("bad ORB settings")?;
-    let mut system = System::new(
-        Orb(extractor),
-        rgbd_camera(&settings),
-        SystemParams::default(),
-    );
+    let mut params = SystemParams::default();
+    params.loop_closing.enabled = !args.no_loop_closing;
+    let mut system = System::new(Orb(extractor), rgbd_camera(&settings), params);
     if !args.no_vocabulary {
         let vocab = match &args.vocabulary {
             Some(p) => Vocabulary::load(p)
@@ -256,7 +258,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let mut status = Vec::with_capacity(frames.len());
     let mut timing =
-        String::from("index,timestamp,extract_ms,track_ms,mapping_ms,keyframe,state\n");
+        String::from("index,timestamp,extract_ms,track_ms,mapping_ms,loop_ms,keyframe,state\n");
     let (mut t_track, mut t_total) = (Vec::new(), Vec::new());
     for (t, r) in rx {
         let (rgb, depth) = r?;
@@ -276,14 +278,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         status.push(StampedStatus { t, status: st });
         let tr = (res.times.extract + res.times.track) * 1e3;
         t_track.push(tr);
-        t_total.push(tr + res.times.mapping * 1e3);
+        t_total.push(tr + (res.times.mapping + res.times.loop_closing) * 1e3);
         timing.push_str(&format!(
-            "{},{:.6},{:.3},{:.3},{:.3},{},{}\n",
+            "{},{:.6},{:.3},{:.3},{:.3},{:.3},{},{}\n",
             res.index,
             t,
             res.times.extract * 1e3,
             res.times.track * 1e3,
             res.times.mapping * 1e3,
+            res.times.loop_closing * 1e3,
             u8::from(res.new_keyframe),
             st
         ));
@@ -317,6 +320,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     kfs.write_tum(args.out.join("keyframes.txt"))?;
     dynapix_io::write_atomic(args.out.join("timing.csv"), timing.as_bytes())?;
+    write_loops(&args.out.join("loops.txt"), system.loop_events())?;
     let tracked = status
         .iter()
         .filter(|s| s.status == FrameStatus::Tracked)
@@ -325,15 +329,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mean_track = t_track.iter().sum::<f64>() / n;
     let mean_total = t_total.iter().sum::<f64>() / n;
     eprintln!(
-        "{} frames, {} tracked, {} keyframes, {} map points; tracking ms median {:.1} mean {:.1} p95 {:.1}; total ms/frame mean {:.1}",
+        "{} frames, {} tracked, {} keyframes, {} map points, {} loops closed; tracking ms median {:.1} mean {:.1} p95 {:.1}; total ms/frame mean {:.1}",
         status.len(),
         tracked,
         system.map().num_keyframes(),
         system.map().num_points(),
+        system.loop_events().len(),
         median(&mut t_track.clone()),
         mean_track,
         percentile(&mut t_track, 0.95),
         mean_total
     );
+    Ok(())
+}
+
+/// Writes the closed loops, one per line: the two keyframes' timestamps, the matches and what
+/// the correction did and took (essential graph and global BA times in ms).
+pub(crate) fn write_loops(path: &Path, events: &[LoopEvent]) -> anyhow::Result<()> {
+    let mut s = String::from(
+        "# current_kf_timestamp loop_kf_timestamp matched_points corrected_keyframes fused_points essential_graph_edges essential_graph_ms global_ba_ms\n",
+    );
+    for e in events {
+        let c = &e.correction;
+        s.push_str(&format!(
+            "{:.6} {:.6} {} {} {} {} {:.3} {:.3}\n",
+            e.current_timestamp,
+            e.loop_timestamp,
+            e.matched_points,
+            c.corrected_keyframes,
+            c.fused_points,
+            c.essential_graph_edges,
+            c.essential_graph_seconds * 1e3,
+            c.global_ba_seconds * 1e3,
+        ));
+    }
+    dynapix_io::write_atomic(path, s.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
 }
