@@ -462,35 +462,12 @@ impl LocalMapper {
             poses.push(k.pose);
             fixed.push(i >= n_local || Some(id) == origin);
         }
-        let pyr = &map.pyramid;
-        let mut edges = Vec::new();
-        let mut edge_ref: Vec<(MapPointId, KeyFrameId)> = Vec::new();
         let mut pts = Vec::with_capacity(points.len());
-        for (pi, &m) in points.iter().enumerate() {
+        for &m in &points {
             let Some(p) = map.point(m) else { return 0 };
             pts.push(p.position);
-            for (&o, &idx) in &p.observations {
-                let Some(&ki) = pose_index.get(&o) else {
-                    continue;
-                };
-                let Some(k) = map.keyframe(o) else { continue };
-                let Some(kp) = k.keys_un.get(idx) else {
-                    continue;
-                };
-                let ur = k.u_right[idx];
-                edges.push(BaEdge {
-                    pose: ki,
-                    point: pi,
-                    obs: Observation {
-                        uv: [kp.x as f64, kp.y as f64],
-                        u_right: (ur >= 0.0).then_some(ur as f64),
-                        inv_sigma2: pyr.inv_sigma2_of(kp.octave as usize) as f64,
-                        weight: k.weights.get(idx).copied().unwrap_or(1.0) as f64,
-                    },
-                });
-                edge_ref.push((m, o));
-            }
         }
+        let (edges, edge_ref) = weighted_ba_edges(map, &points, &pose_index);
         if edges.is_empty() {
             return 0;
         }
@@ -527,7 +504,7 @@ impl LocalMapper {
 
     /// Culls covisible keyframes whose close points are ≥ 90 % seen by ≥ 3 other keyframes at
     /// the same or finer scale (ORB-SLAM2 `KeyFrameCulling`).
-    fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
+    pub(crate) fn cull_keyframes(&mut self, map: &mut Map, kf: KeyFrameId) -> usize {
         let Some(k) = map.keyframe(kf) else { return 0 };
         let covis: Vec<KeyFrameId> = k.ordered.iter().map(|(o, _)| *o).collect();
         let th_obs = self.params.kf_cull_observers;
@@ -537,6 +514,11 @@ impl LocalMapper {
                 continue;
             }
             let Some(ck) = map.keyframe(c) else { continue };
+            // ORB-SLAM2 never erases a keyframe with loop edges (`mbNotErase`): the essential
+            // graph and later loop corrections rely on them.
+            if !ck.loop_edges.is_empty() {
+                continue;
+            }
             let mut n_mps = 0usize;
             let mut n_redundant = 0usize;
             for (i, m) in ck.map_points.iter().enumerate() {
@@ -576,6 +558,46 @@ impl LocalMapper {
         }
         culled
     }
+}
+
+/// Weighted BA edges of `points` (edge `point` = index into `points`) as seen from the
+/// keyframes of `pose_index` (edge `pose` = its value), one per observation in keyframe-id
+/// order, each carrying the DynaPix weight of the observing keypoint (spec §2.7). Shared by
+/// local BA and loop closing's global BA so both weigh observations identically. Also returns
+/// the `(point, keyframe)` of each edge for outlier handling.
+pub(crate) fn weighted_ba_edges(
+    map: &Map,
+    points: &[MapPointId],
+    pose_index: &HashMap<KeyFrameId, usize>,
+) -> (Vec<BaEdge>, Vec<(MapPointId, KeyFrameId)>) {
+    let pyr = &map.pyramid;
+    let mut edges = Vec::new();
+    let mut edge_ref: Vec<(MapPointId, KeyFrameId)> = Vec::new();
+    for (pi, &m) in points.iter().enumerate() {
+        let Some(p) = map.point(m) else { continue };
+        for (&o, &idx) in &p.observations {
+            let Some(&ki) = pose_index.get(&o) else {
+                continue;
+            };
+            let Some(k) = map.keyframe(o) else { continue };
+            let Some(kp) = k.keys_un.get(idx) else {
+                continue;
+            };
+            let ur = k.u_right.get(idx).copied().unwrap_or(-1.0);
+            edges.push(BaEdge {
+                pose: ki,
+                point: pi,
+                obs: Observation {
+                    uv: [kp.x as f64, kp.y as f64],
+                    u_right: (ur >= 0.0).then_some(ur as f64),
+                    inv_sigma2: pyr.inv_sigma2_of(kp.octave as usize) as f64,
+                    weight: k.weights.get(idx).copied().unwrap_or(1.0) as f64,
+                },
+            });
+            edge_ref.push((m, o));
+        }
+    }
+    (edges, edge_ref)
 }
 
 /// Linear (DLT) triangulation from normalised coordinates in two views with poses `T_cw`.

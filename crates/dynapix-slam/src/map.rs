@@ -796,6 +796,20 @@ impl Map {
     pub fn keypoint_octave(&self, kf: KeyFrameId, idx: usize) -> Option<u8> {
         self.keyframe(kf)?.keys_un.get(idx).map(|k| k.octave)
     }
+
+    /// Links `a` and `b` by a loop edge on both keyframes (ORB-SLAM2 `AddLoopEdge` called on
+    /// each side). Nothing happens when either id is stale or both are the same keyframe.
+    pub fn add_loop_edge(&mut self, a: KeyFrameId, b: KeyFrameId) {
+        if a == b || self.keyframe(a).is_none() || self.keyframe(b).is_none() {
+            return;
+        }
+        if let Some(k) = self.keyframe_mut(a) {
+            k.loop_edges.insert(b);
+        }
+        if let Some(k) = self.keyframe_mut(b) {
+            k.loop_edges.insert(a);
+        }
+    }
 }
 
 #[cfg(test)]
