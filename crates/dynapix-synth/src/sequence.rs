@@ -50,8 +50,9 @@ pub enum Preset {
     Flying,
     /// A box passing close in front of a nearly static camera, plus a walker.
     Occlusion,
-    /// Camera loop through the room back to its start (period = max(10 s, sequence length), so
-    /// a sequence of ≥ 300 frames ends where it started), a walker and a seated person.
+    /// Camera loop through the room back to its start and on for a fifth of a lap more (period =
+    /// max(10 s, sequence length / 1.2), so a sequence of ≥ 360 frames revisits the views of its
+    /// first seconds, which loop detection needs), a walker and a seated person.
     Loop,
 }
 
@@ -399,8 +400,11 @@ impl Sequence {
         let movers = preset_movers(params.preset, &scene, params.seed);
         let mut motion =
             CameraMotion::new(params.preset.motion(), params.preset.rig(), params.seed);
-        // The loop closes at the end of the sequence when it is long enough for a walking pace.
-        motion.loop_period = motion.loop_period.max(params.frames as f64 / params.fps);
+        // The loop closes before the end of the sequence (which overlaps the start by
+        // LOOP_LAPS − 1 of a lap) when it is long enough for a walking pace.
+        motion.loop_period = motion
+            .loop_period
+            .max(params.frames as f64 / params.fps / crate::trajectory::LOOP_LAPS);
         let k = Intrinsics::from(&params.camera);
         Ok(Self {
             params,
