@@ -522,3 +522,52 @@ fn stale_loop_leaves_the_map_untouched() {
         .collect();
     assert_eq!(before, after);
 }
+
+#[test]
+fn keyframes_and_points_outside_the_global_ba_follow_parent_and_reference() {
+    let mut s = build(&Opts::loop_scene());
+    let m = loop_match(&s);
+    // A keyframe without usable observations (a descriptor but no undistorted keypoint), child
+    // of keyframe 10, holding the only observation of a point.
+    let parent = s.kfs[10];
+    let parent_pose = s.map.keyframe(parent).unwrap().pose;
+    let pose = se3::exp(&Vector6::new(0.0, 0.1, 0.0, 0.05, 0.0, -0.1)) * parent_pose;
+    let extra = s.map.insert_keyframe(KeyFrame {
+        seq: 0,
+        frame_id: 999,
+        timestamp: 999.0,
+        pose,
+        keys: vec![],
+        keys_un: vec![],
+        descriptors: vec![[0u8; 32]],
+        depth: vec![2.0],
+        u_right: vec![-1.0],
+        weights: vec![1.0],
+        dynamic_class: vec![false],
+        map_points: vec![None],
+        grid: FeatureGrid::empty(),
+        bow: vec![],
+        feat: vec![],
+        connections: Default::default(),
+        ordered: vec![],
+        parent: Some(parent),
+        children: BTreeSet::new(),
+        loop_edges: BTreeSet::new(),
+    });
+    s.map.keyframe_mut(parent).unwrap().children.insert(extra);
+    let x = transform(&pose.inverse(), &Vector3::new(0.1, -0.2, 2.0));
+    let mp = s.map.create_point(x, extra, 0).unwrap();
+    let rel_before = pose * parent_pose.inverse();
+    let stats = correct_loop(&mut s.map, &s.cam, &m, &CorrectionParams::default());
+    assert_eq!(stats.global_ba_propagated, 2, "{stats:?}");
+    let parent_after = s.map.keyframe(parent).unwrap().pose;
+    let pose_after = s.map.keyframe(extra).unwrap().pose;
+    assert!(
+        (parent_after.translation.vector - parent_pose.translation.vector).norm() > 1e-3,
+        "the parent must have moved for this test to mean anything"
+    );
+    let rel_after = pose_after * parent_after.inverse();
+    assert!(se3::log(&(rel_after * rel_before.inverse())).norm() < 1e-6);
+    let xc = transform(&pose_after, &s.map.point(mp).unwrap().position);
+    assert!((xc - Vector3::new(0.1, -0.2, 2.0)).norm() < 1e-6, "{xc:?}");
+}
