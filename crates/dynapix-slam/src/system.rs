@@ -196,6 +196,15 @@ impl<E: FeatureExtractor> System<E> {
             .tracker
             .track(&mut self.map, frame, self.vocab.as_ref());
         let t2 = Instant::now();
+        // The frame pose relative to its reference keyframe is taken at tracking time, before
+        // local BA or a loop correction moves the keyframe (ORB-SLAM2 stores `Tcr` in
+        // `Tracking`), so later keyframe corrections carry the frame along.
+        let relative = match (out.pose, out.reference) {
+            (Some(p), Some(r)) if out.state == TrackingState::Ok => {
+                self.map.keyframe_pose(r).map(|rp| (r, p * rp.inverse()))
+            }
+            _ => None,
+        };
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
             mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
@@ -217,12 +226,6 @@ impl<E: FeatureExtractor> System<E> {
             self.closer.reset();
             reset = true;
         }
-        let relative = match (out.pose, out.reference) {
-            (Some(p), Some(r)) if out.state == TrackingState::Ok => {
-                self.map.keyframe_pose(r).map(|rp| (r, p * rp.inverse()))
-            }
-            _ => None,
-        };
         self.records.push(Record {
             timestamp: input.timestamp,
             state: out.state,

@@ -50,9 +50,10 @@ pub enum Preset {
     Flying,
     /// A box passing close in front of a nearly static camera, plus a walker.
     Occlusion,
-    /// Camera loop through the room back to its start and on for a fifth of a lap more (period =
-    /// max(10 s, sequence length / 1.2), so a sequence of ≥ 360 frames revisits the views of its
-    /// first seconds, which loop detection needs), a walker and a seated person.
+    /// Camera loop through the room back to its start and on for half a lap more (period =
+    /// max(10 s, sequence length / 1.5), so a sequence of ≥ 450 frames revisits the views of its
+    /// first seconds, which a loop closure needs, and then keeps re-observing the mapped room),
+    /// a walker and a seated person.
     Loop,
 }
 

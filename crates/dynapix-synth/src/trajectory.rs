@@ -42,9 +42,10 @@ pub fn look_at(eye: &Point3<f64>, target: &Point3<f64>) -> UnitQuaternion<f64> {
 /// Shortest loop period (s) that keeps the loop within walking speed (≤ 0.5 m/s, ≤ 40°/s).
 pub const MIN_LOOP_PERIOD: f64 = 10.0;
 
-/// Laps of the `loop` preset's camera in a long sequence: the camera passes its start and
-/// re-observes the first views (several keyframes), as a loop closure needs.
-pub const LOOP_LAPS: f64 = 1.2;
+/// Laps of the `loop` preset's camera in a long sequence: the camera passes its start,
+/// re-observes the first views (several keyframes), as a loop closure needs, and goes on through
+/// the mapped room for half a lap, where a closed loop pays off and an open one keeps drifting.
+pub const LOOP_LAPS: f64 = 1.5;
 
 /// Kind of camera motion.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -16,8 +16,8 @@ use dynapix_io::tum::{
 use dynapix_io::{Association, FrameStatus, Settings, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
-use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
 use dynapix_slam::loop_closing::LoopEvent;
+use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FeatureExtractor, FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
