@@ -120,6 +120,8 @@ pub struct System<E> {
     records: Vec<Record>,
     next_index: u64,
     vocab: Option<Vocabulary>,
+    /// Localisation mode: track a fixed map, never map (see [`System::from_map`]).
+    localization: bool,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -136,7 +138,36 @@ impl<E: FeatureExtractor> System<E> {
             records: Vec::new(),
             next_index: 0,
             vocab: None,
+            localization: false,
         }
+    }
+
+    /// A system in localisation mode on a previously built `map` (e.g. from
+    /// [`crate::persist::SavedMap::into_map`]): frames are relocalised into the map and then
+    /// tracked against it; no keyframe, map point or local mapping is ever created
+    /// (ORB-SLAM2 `ActivateLocalizationMode`). `vocab` must be the one the map was built with.
+    pub fn from_map(
+        extractor: E,
+        cam: RgbdCamera,
+        params: SystemParams,
+        map: Map,
+        vocab: Option<Vocabulary>,
+    ) -> Self {
+        let mut s = Self::new(extractor, cam, params);
+        s.map = map;
+        s.vocab = vocab;
+        s.localization = true;
+        s
+    }
+
+    /// True in localisation mode.
+    pub fn is_localization(&self) -> bool {
+        self.localization
+    }
+
+    /// The vocabulary, if any.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.vocab.as_ref()
     }
 
     /// Uses `vocab` for bag-of-words matching and relocalisation candidates (without one,
@@ -182,9 +213,13 @@ impl<E: FeatureExtractor> System<E> {
             crate::dynapix::apply_class_mask(&mut frame, m);
         }
         let num_keypoints = frame.len();
-        let out = self
-            .tracker
-            .track(&mut self.map, frame, self.vocab.as_ref());
+        let out = if self.localization {
+            self.tracker
+                .track_localization(&mut self.map, frame, self.vocab.as_ref())
+        } else {
+            self.tracker
+                .track(&mut self.map, frame, self.vocab.as_ref())
+        };
         let t2 = Instant::now();
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
