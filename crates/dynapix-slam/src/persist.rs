@@ -54,8 +54,8 @@ pub const HEADER_LEN: usize = 28;
 /// Errors of map loading (and of the caller's file access, for one error type end to end).
 #[derive(Debug, thiserror::Error)]
 pub enum PersistError {
-    /// Reading or writing the map file failed.
-    #[error("{path}: {source}")]
+    /// Reading or writing the map file failed (the I/O error is the source).
+    #[error("cannot access map file {path}")]
     Io {
         /// The file.
         path: PathBuf,

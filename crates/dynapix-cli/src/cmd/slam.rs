@@ -1,9 +1,12 @@
 //! `dynapix slam`: runs the RGB-D SLAM system on a sequence folder and writes
 //! `trajectory.txt` (TUM, every tracked frame, camera-to-world), `status.txt` (per frame:
 //! tracked / lost / not_initialized), `keyframes.txt` and `timing.csv` into `--out`.
+//! `--save-map FILE` saves the final map (`dynapix_slam::persist` format); `--localize MAP`
+//! loads one and only tracks against it (localisation mode: no new keyframes or map points).
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use dynapix_io::images::read_rgbd;
@@ -17,6 +20,7 @@ use dynapix_io::{Association, FrameStatus, Settings, StampedPose, StampedStatus,
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
+use dynapix_slam::persist::{self, PersistError, SavedMap};
 use dynapix_slam::system::{FeatureExtractor, FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
@@ -77,6 +81,15 @@ pub struct Args {
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Save the map at the end of the run to FILE (binary map format, written atomically;
+    /// reuse it with --localize).
+    #[arg(long, value_name = "FILE", conflicts_with = "localize")]
+    pub save_map: Option<PathBuf>,
+    /// Localisation mode: load MAP (written by --save-map with the same camera, ORB settings
+    /// and vocabulary) and only track against it: frames are relocalised into the map, no
+    /// keyframe or map point is created, the map file is not changed.
+    #[arg(long, value_name = "MAP")]
+    pub localize: Option<PathBuf>,
 }
 
 impl CameraPreset {
@@ -217,19 +230,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let extractor = OrbExtractor::new(orb_params(&settings)?).context("bad ORB settings")?;
-    let mut system = System::new(
-        Orb(extractor),
-        rgbd_camera(&settings),
-        SystemParams::default(),
-    );
-    if !args.no_vocabulary {
-        let vocab = match &args.vocabulary {
+    let vocab = if args.no_vocabulary {
+        None
+    } else {
+        Some(match &args.vocabulary {
             Some(p) => Vocabulary::load(p)
                 .with_context(|| format!("cannot load vocabulary {}", p.display()))?,
             None => Vocabulary::embedded_default().context("embedded vocabulary")?,
-        };
-        system = system.with_vocabulary(vocab);
-    }
+        })
+    };
+    let params = SystemParams::default();
+    let mut localize_note = String::new();
+    let mut system = match &args.localize {
+        Some(path) => {
+            let extractor = Orb(extractor);
+            let t0 = Instant::now();
+            let saved = load_map(path, &settings, &extractor.pyramid(), vocab.as_ref())?;
+            localize_note = format!(
+                "localisation mode, map {} ({} keyframes, {} points)",
+                path.display(),
+                saved.num_keyframes(),
+                saved.num_points()
+            );
+            let map = saved.into_map(params.map.clone());
+            eprintln!(
+                "{localize_note}: loaded in {:.1} ms",
+                t0.elapsed().as_secs_f64() * 1e3
+            );
+            System::from_map(extractor, rgbd_camera(&settings), params, map, vocab)
+        }
+        None => {
+            let system = System::new(Orb(extractor), rgbd_camera(&settings), params);
+            match vocab {
+                Some(v) => system.with_vocabulary(v),
+                None => system,
+            }
+        }
+    };
 
     // Images are decoded on a helper thread, a few frames ahead of tracking.
     let (tx, rx) = sync_channel(4);
@@ -324,6 +361,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let n = t_track.len().max(1) as f64;
     let mean_track = t_track.iter().sum::<f64>() / n;
     let mean_total = t_total.iter().sum::<f64>() / n;
+    if let Some(path) = &args.save_map {
+        save_map(path, &system, settings.depth_map_factor)?;
+    }
+    if !localize_note.is_empty() {
+        eprint!("{localize_note}: ");
+    }
     eprintln!(
         "{} frames, {} tracked, {} keyframes, {} map points; tracking ms median {:.1} mean {:.1} p95 {:.1}; total ms/frame mean {:.1}",
         status.len(),
@@ -334,6 +377,69 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mean_track,
         percentile(&mut t_track, 0.95),
         mean_total
+    );
+    Ok(())
+}
+
+/// Reads, decodes and checks a map file against this run's camera, ORB pyramid and
+/// vocabulary; every error names the file.
+fn load_map(
+    path: &Path,
+    settings: &Settings,
+    pyramid: &ScalePyramid,
+    vocab: Option<&Vocabulary>,
+) -> anyhow::Result<SavedMap> {
+    let t0 = Instant::now();
+    let bytes = std::fs::read(path).map_err(|source| PersistError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let t1 = Instant::now();
+    let saved =
+        persist::decode(&bytes).with_context(|| format!("cannot load map {}", path.display()))?;
+    saved
+        .check_compatible(
+            &rgbd_camera(settings),
+            settings.depth_map_factor,
+            pyramid,
+            vocab,
+        )
+        .with_context(|| format!("cannot use map {} for this run", path.display()))?;
+    tracing::info!(
+        "map {}: {} bytes, read {:.1} ms, decode+validate {:.1} ms ({})",
+        path.display(),
+        bytes.len(),
+        (t1 - t0).as_secs_f64() * 1e3,
+        t1.elapsed().as_secs_f64() * 1e3,
+        saved.producer
+    );
+    Ok(saved)
+}
+
+/// Encodes the map of `system` and writes it atomically to `path`.
+fn save_map<E: FeatureExtractor>(
+    path: &Path,
+    system: &System<E>,
+    depth_factor: f64,
+) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let bytes = persist::encode(
+        system.map(),
+        system.camera(),
+        depth_factor,
+        system.vocabulary(),
+    );
+    let t1 = Instant::now();
+    dynapix_io::write_atomic(path, &bytes)
+        .with_context(|| format!("cannot save map {}", path.display()))?;
+    eprintln!(
+        "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
+        path.display(),
+        system.map().num_keyframes(),
+        system.map().num_points(),
+        bytes.len() as f64 / 1e6,
+        (t1 - t0).as_secs_f64() * 1e3,
+        t1.elapsed().as_secs_f64() * 1e3
     );
     Ok(())
 }
