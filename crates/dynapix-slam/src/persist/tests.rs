@@ -14,7 +14,7 @@ use super::*;
 use crate::features::Descriptor;
 use crate::frame::{DepthImage, transform};
 use crate::map::KeyFrameId;
-use crate::system::{FeatureExtractor, FrameInput, System, SystemParams};
+use crate::system::{FeatureExtractor, FrameInput, FrameResult, System, SystemParams};
 use crate::tracking::TrackingState;
 
 const W: u32 = 640;
@@ -86,16 +86,33 @@ fn render(tcw: &Se3) -> (Vec<KeyPoint>, Vec<Descriptor>, DepthImage) {
     (keys, descs, depth)
 }
 
-/// Hands out the features of frame `i` at the `i`-th call (the image is ignored).
+/// Hands out the features of the planned shots in order (the image is ignored): `Some(i)` is
+/// the view from `pose_at(i)`, `None` a featureless frame.
 struct Synthetic {
-    next: u64,
+    shots: Vec<Option<u64>>,
+    pos: usize,
+}
+
+impl Synthetic {
+    fn new(shots: &[Option<u64>]) -> Self {
+        Self {
+            shots: shots.to_vec(),
+            pos: 0,
+        }
+    }
 }
 
 impl FeatureExtractor for Synthetic {
     fn extract(&mut self, _image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        let (k, d, _) = render(&pose_at(self.next));
-        self.next += 1;
-        (k, d)
+        let shot = self.shots.get(self.pos).copied().flatten();
+        self.pos += 1;
+        match shot {
+            Some(i) => {
+                let (k, d, _) = render(&pose_at(i));
+                (k, d)
+            }
+            None => (Vec::new(), Vec::new()),
+        }
     }
     fn pyramid(&self) -> ScalePyramid {
         ScalePyramid::new(8, 1.2)
@@ -107,24 +124,54 @@ fn vocab() -> &'static Vocabulary {
     V.get_or_init(|| Vocabulary::embedded_default().expect("embedded vocabulary"))
 }
 
-/// Runs `system` over the sequence; returns the tracked poses `T_cw`.
-fn run(system: &mut System<Synthetic>) -> Vec<Option<Se3>> {
+fn all_frames() -> Vec<Option<u64>> {
+    (0..FRAMES).map(Some).collect()
+}
+
+/// Runs `system` over `shots` (the ones its extractor was made with).
+fn run_shots(system: &mut System<Synthetic>, shots: &[Option<u64>]) -> Vec<FrameResult> {
     let gray = GrayImage::new(W, H);
-    (0..FRAMES)
-        .map(|i| {
-            let (_, _, depth) = render(&pose_at(i));
-            let r = system.process(FrameInput {
-                timestamp: i as f64 / 30.0,
+    shots
+        .iter()
+        .enumerate()
+        .map(|(n, shot)| {
+            let depth = match shot {
+                Some(i) => render(&pose_at(*i)).2,
+                None => DepthImage::new(W, H),
+            };
+            system.process(FrameInput {
+                timestamp: n as f64 / 30.0,
                 gray: &gray,
                 depth: &depth,
                 weights: None,
                 masks: None,
-            });
+            })
+        })
+        .collect()
+}
+
+/// Runs `system` over the whole sequence; returns the tracked poses `T_cw`.
+fn run(system: &mut System<Synthetic>) -> Vec<Option<Se3>> {
+    run_shots(system, &all_frames())
+        .into_iter()
+        .map(|r| {
             (r.state == TrackingState::Ok)
                 .then_some(r.pose_cw)
                 .flatten()
         })
         .collect()
+}
+
+/// A localisation-mode system on the saved test map for `shots`.
+fn localiser(shots: &[Option<u64>]) -> System<Synthetic> {
+    let saved = decode(&built().bytes).expect("decode");
+    System::from_map(
+        Synthetic::new(shots),
+        camera(),
+        SystemParams::default(),
+        saved.into_map(MapParams::default()),
+        Some(vocab().clone()),
+    )
 }
 
 struct Built {
@@ -137,8 +184,12 @@ struct Built {
 fn built() -> &'static Built {
     static B: OnceLock<Built> = OnceLock::new();
     B.get_or_init(|| {
-        let mut system = System::new(Synthetic { next: 0 }, camera(), SystemParams::default())
-            .with_vocabulary(vocab().clone());
+        let mut system = System::new(
+            Synthetic::new(&all_frames()),
+            camera(),
+            SystemParams::default(),
+        )
+        .with_vocabulary(vocab().clone());
         let poses = run(&mut system);
         let saved = SavedMap::from_map(system.map(), &camera(), DEPTH_FACTOR, Some(vocab()));
         let bytes = encode(system.map(), &camera(), DEPTH_FACTOR, Some(vocab()));
@@ -187,8 +238,12 @@ fn round_trip_is_lossless_and_byte_identical() {
 #[test]
 fn reloaded_keyframes_match_the_originals_including_grids_and_links() {
     // Rebuild the original live map once more and compare live structures with the reload.
-    let mut system = System::new(Synthetic { next: 0 }, camera(), SystemParams::default())
-        .with_vocabulary(vocab().clone());
+    let mut system = System::new(
+        Synthetic::new(&all_frames()),
+        camera(),
+        SystemParams::default(),
+    )
+    .with_vocabulary(vocab().clone());
     run(&mut system);
     let orig = system.map();
     let loaded = decode(&encode(orig, &camera(), DEPTH_FACTOR, Some(vocab())))
@@ -257,7 +312,7 @@ fn localisation_mode_tracks_every_frame_and_never_maps() {
         .expect("compatible");
     let (nk, np) = (saved.num_keyframes(), saved.num_points());
     let mut system = System::from_map(
-        Synthetic { next: 0 },
+        Synthetic::new(&all_frames()),
         camera(),
         SystemParams::default(),
         saved.into_map(MapParams::default()),
@@ -464,4 +519,45 @@ fn incompatible_camera_pyramid_or_vocabulary_are_refused() {
     let msg = e.to_string();
     let id = VocabularyId::of(vocab()).to_string();
     assert_eq!(msg, format!("map was built with vocabulary {id}, got none"));
+}
+
+#[test]
+fn localisation_enters_the_map_anywhere_and_recovers_after_losing_track() {
+    let b = built();
+    let (nk, np) = (b.saved.num_keyframes(), b.saved.num_points());
+    // Start in the middle of the sequence, lose track on two featureless frames, go on.
+    let mut shots: Vec<Option<u64>> = (35..50).map(Some).collect();
+    shots.extend([None, None]);
+    shots.extend((52..FRAMES).map(Some));
+    let mut system = localiser(&shots);
+    let res = run_shots(&mut system, &shots);
+    assert!(res[0].relocalised && res[0].state == TrackingState::Ok);
+    for (r, shot) in res.iter().zip(&shots) {
+        assert!(!r.new_keyframe && !r.reset && r.mapping.is_none());
+        match shot {
+            None => assert_eq!(r.state, TrackingState::Lost),
+            Some(i) => {
+                assert_eq!(r.state, TrackingState::Ok, "frame {i}");
+                let est = r.pose_cw.expect("pose");
+                let truth = pose_at(*i) * pose_at(0).inverse();
+                let dt = (est.translation.vector - truth.translation.vector).norm();
+                assert!(dt < 5e-3, "frame {i}: {dt} m");
+            }
+        }
+    }
+    let back = shots.iter().position(|s| *s == Some(52)).expect("frame 52");
+    assert!(
+        res[back].relocalised,
+        "tracking resumed without relocalisation"
+    );
+    assert_eq!(system.map().num_keyframes(), nk);
+    assert_eq!(system.map().num_points(), np);
+    // Lost frames have no trajectory pose; tracked ones do.
+    let traj = system.trajectory();
+    assert_eq!(traj.len(), shots.len());
+    assert!(
+        traj.iter()
+            .zip(&shots)
+            .all(|(t, s)| t.pose_wc.is_some() == s.is_some())
+    );
 }
