@@ -351,17 +351,13 @@ impl Map {
         next_kf_seq: u64,
         next_mp_seq: u64,
     ) -> Self {
-        Self {
-            keyframes: Arena::from_values(keyframes),
-            points: Arena::from_values(points),
-            culled: HashMap::new(),
-            replaced: HashMap::new(),
-            next_kf_seq,
-            next_mp_seq,
-            params,
-            pyramid,
-            origin,
-        }
+        let mut map = Self::new(pyramid, params);
+        map.keyframes = Arena::from_values(keyframes);
+        map.points = Arena::from_values(points);
+        map.next_kf_seq = next_kf_seq;
+        map.next_mp_seq = next_mp_seq;
+        map.origin = origin;
+        map
     }
 
     /// Next map point sequence number (the one [`Map::create_point`] assigns).

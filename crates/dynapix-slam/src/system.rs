@@ -154,10 +154,20 @@ impl<E: FeatureExtractor> System<E> {
         vocab: Option<Vocabulary>,
     ) -> Self {
         let mut s = Self::new(extractor, cam, params);
-        s.map = map;
         s.vocab = vocab;
-        s.localization = true;
+        s.enter_localization(map);
         s
+    }
+
+    /// Switches to localisation mode on `map` (see [`System::from_map`]), replacing the current
+    /// map and tracking state; meant to be called before the first frame. Poses of frames
+    /// already processed are frozen.
+    pub fn enter_localization(&mut self, map: Map) {
+        self.freeze_records();
+        self.map = map;
+        self.tracker = Tracker::new(self.cam.clone(), self.tracker.params.clone());
+        self.mapper.reset();
+        self.localization = true;
     }
 
     /// True in localisation mode.

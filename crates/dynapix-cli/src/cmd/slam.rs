@@ -20,7 +20,6 @@ use dynapix_io::{Association, FrameStatus, Settings, StampedPose, StampedStatus,
 use dynapix_slam::features::{Descriptor, KeyPoint};
 use dynapix_slam::frame::{RgbdCamera, ScalePyramid};
 use dynapix_slam::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
-use dynapix_slam::persist::{self, PersistError, SavedMap};
 use dynapix_slam::system::{FeatureExtractor, FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
@@ -75,12 +74,6 @@ pub struct Args {
     /// Run without a vocabulary (brute-force keyframe matching).
     #[arg(long)]
     pub no_vocabulary: bool,
-    /// Output folder.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Process at most this many frames.
-    #[arg(long)]
-    pub max_frames: Option<usize>,
     /// Save the map at the end of the run to FILE (binary map format, written atomically;
     /// reuse it with --localize).
     #[arg(long, value_name = "FILE", conflicts_with = "localize")]
@@ -90,6 +83,12 @@ pub struct Args {
     /// keyframe or map point is created, the map file is not changed.
     #[arg(long, value_name = "MAP")]
     pub localize: Option<PathBuf>,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Process at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
 }
 
 impl CameraPreset {
@@ -216,6 +215,80 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[i.min(v.len() - 1)]
 }
 
+/// Loads the map file `path`, checks it against the camera, ORB pyramid and vocabulary of
+/// `system` and switches `system` to localisation mode on it; every error names the file.
+/// Returns the summary line "localisation mode, map MAP (N keyframes, M points)".
+fn enter_localization<E: FeatureExtractor>(
+    system: &mut System<E>,
+    path: &Path,
+    settings: &Settings,
+) -> anyhow::Result<String> {
+    let t0 = Instant::now();
+    let bytes = std::fs::read(path).map_err(|source| dynapix_slam::persist::PersistError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let t1 = Instant::now();
+    let saved = dynapix_slam::persist::decode(&bytes)
+        .with_context(|| format!("cannot load map {}", path.display()))?;
+    let pyramid = system.map().pyramid.clone();
+    saved
+        .check_compatible(
+            system.camera(),
+            settings.depth_map_factor,
+            &pyramid,
+            system.vocabulary(),
+        )
+        .with_context(|| format!("cannot use map {} for this run", path.display()))?;
+    let t2 = Instant::now();
+    let note = format!(
+        "localisation mode, map {} ({} keyframes, {} points)",
+        path.display(),
+        saved.num_keyframes(),
+        saved.num_points()
+    );
+    let params = system.map().params.clone();
+    system.enter_localization(saved.into_map(params));
+    let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+    eprintln!(
+        "{note}: loaded in {:.1} ms (read {:.1}, decode + check {:.1}, rebuild {:.1}; {} bytes)",
+        t0.elapsed().as_secs_f64() * 1e3,
+        ms(t0, t1),
+        ms(t1, t2),
+        t2.elapsed().as_secs_f64() * 1e3,
+        bytes.len()
+    );
+    Ok(note)
+}
+
+/// Encodes the map of `system` and writes it atomically to `path`.
+fn save_map<E: FeatureExtractor>(
+    path: &Path,
+    system: &System<E>,
+    depth_factor: f64,
+) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let bytes = dynapix_slam::persist::encode(
+        system.map(),
+        system.camera(),
+        depth_factor,
+        system.vocabulary(),
+    );
+    let t1 = Instant::now();
+    dynapix_io::write_atomic(path, &bytes)
+        .with_context(|| format!("cannot save map {}", path.display()))?;
+    eprintln!(
+        "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
+        path.display(),
+        system.map().num_keyframes(),
+        system.map().num_points(),
+        bytes.len() as f64 / 1e6,
+        (t1 - t0).as_secs_f64() * 1e3,
+        t1.elapsed().as_secs_f64() * 1e3
+    );
+    Ok(())
+}
+
 /// Runs `dynapix slam`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Mode::Orbslam2 = args.mode;
@@ -230,42 +303,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let extractor = OrbExtractor::new(orb_params(&settings)?).context("bad ORB settings")?;
-    let vocab = if args.no_vocabulary {
-        None
-    } else {
-        Some(match &args.vocabulary {
+    let mut system = System::new(
+        Orb(extractor),
+        rgbd_camera(&settings),
+        SystemParams::default(),
+    );
+    if !args.no_vocabulary {
+        let vocab = match &args.vocabulary {
             Some(p) => Vocabulary::load(p)
                 .with_context(|| format!("cannot load vocabulary {}", p.display()))?,
             None => Vocabulary::embedded_default().context("embedded vocabulary")?,
-        })
-    };
-    let params = SystemParams::default();
-    let mut localize_note = String::new();
-    let mut system = match &args.localize {
-        Some(path) => {
-            let extractor = Orb(extractor);
-            let t0 = Instant::now();
-            let saved = load_map(path, &settings, &extractor.pyramid(), vocab.as_ref())?;
-            localize_note = format!(
-                "localisation mode, map {} ({} keyframes, {} points)",
-                path.display(),
-                saved.num_keyframes(),
-                saved.num_points()
-            );
-            let map = saved.into_map(params.map.clone());
-            eprintln!(
-                "{localize_note}: loaded in {:.1} ms",
-                t0.elapsed().as_secs_f64() * 1e3
-            );
-            System::from_map(extractor, rgbd_camera(&settings), params, map, vocab)
-        }
-        None => {
-            let system = System::new(Orb(extractor), rgbd_camera(&settings), params);
-            match vocab {
-                Some(v) => system.with_vocabulary(v),
-                None => system,
-            }
-        }
+        };
+        system = system.with_vocabulary(vocab);
+    }
+    let localize_note = match &args.localize {
+        Some(path) => enter_localization(&mut system, path, &settings)?,
+        None => String::new(),
     };
 
     // Images are decoded on a helper thread, a few frames ahead of tracking.
@@ -361,12 +414,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let n = t_track.len().max(1) as f64;
     let mean_track = t_track.iter().sum::<f64>() / n;
     let mean_total = t_total.iter().sum::<f64>() / n;
-    if let Some(path) = &args.save_map {
-        save_map(path, &system, settings.depth_map_factor)?;
-    }
-    if !localize_note.is_empty() {
-        eprint!("{localize_note}: ");
-    }
     eprintln!(
         "{} frames, {} tracked, {} keyframes, {} map points; tracking ms median {:.1} mean {:.1} p95 {:.1}; total ms/frame mean {:.1}",
         status.len(),
@@ -378,68 +425,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         percentile(&mut t_track, 0.95),
         mean_total
     );
-    Ok(())
-}
-
-/// Reads, decodes and checks a map file against this run's camera, ORB pyramid and
-/// vocabulary; every error names the file.
-fn load_map(
-    path: &Path,
-    settings: &Settings,
-    pyramid: &ScalePyramid,
-    vocab: Option<&Vocabulary>,
-) -> anyhow::Result<SavedMap> {
-    let t0 = Instant::now();
-    let bytes = std::fs::read(path).map_err(|source| PersistError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let t1 = Instant::now();
-    let saved =
-        persist::decode(&bytes).with_context(|| format!("cannot load map {}", path.display()))?;
-    saved
-        .check_compatible(
-            &rgbd_camera(settings),
-            settings.depth_map_factor,
-            pyramid,
-            vocab,
-        )
-        .with_context(|| format!("cannot use map {} for this run", path.display()))?;
-    tracing::info!(
-        "map {}: {} bytes, read {:.1} ms, decode+validate {:.1} ms ({})",
-        path.display(),
-        bytes.len(),
-        (t1 - t0).as_secs_f64() * 1e3,
-        t1.elapsed().as_secs_f64() * 1e3,
-        saved.producer
-    );
-    Ok(saved)
-}
-
-/// Encodes the map of `system` and writes it atomically to `path`.
-fn save_map<E: FeatureExtractor>(
-    path: &Path,
-    system: &System<E>,
-    depth_factor: f64,
-) -> anyhow::Result<()> {
-    let t0 = Instant::now();
-    let bytes = persist::encode(
-        system.map(),
-        system.camera(),
-        depth_factor,
-        system.vocabulary(),
-    );
-    let t1 = Instant::now();
-    dynapix_io::write_atomic(path, &bytes)
-        .with_context(|| format!("cannot save map {}", path.display()))?;
-    eprintln!(
-        "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
-        path.display(),
-        system.map().num_keyframes(),
-        system.map().num_points(),
-        bytes.len() as f64 / 1e6,
-        (t1 - t0).as_secs_f64() * 1e3,
-        t1.elapsed().as_secs_f64() * 1e3
-    );
+    if !localize_note.is_empty() {
+        eprintln!("{localize_note}");
+    }
+    if let Some(path) = &args.save_map {
+        save_map(path, &system, settings.depth_map_factor)?;
+    }
     Ok(())
 }
