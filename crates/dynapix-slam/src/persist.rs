@@ -382,6 +382,16 @@ fn decode_payload(payload: &[u8]) -> Result<SavedMap, PersistError> {
     }
     check_saved_camera(&saved)?;
     saved.map.validate()?;
+    if let Some(v) = saved.vocabulary {
+        for (i, k) in saved.map.keyframes.iter().enumerate() {
+            if let Some(w) = k.bow.iter().find(|w| w.0 >= v.words) {
+                return Err(PersistError::corrupt(format!(
+                    "keyframe {i}: word {} of a {}-word vocabulary",
+                    w.0, v.words
+                )));
+            }
+        }
+    }
     Ok(saved)
 }
 

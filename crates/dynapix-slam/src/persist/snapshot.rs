@@ -176,6 +176,7 @@ impl MapSnapshot {
                     .filter_map(|(k, &i)| Some((*kf_index.get(k)?, u32::try_from(i).ok()?)))
                     .collect();
                 observations.sort_unstable();
+                let first_observer = observations.first().map(|o| o.0);
                 MapPointSnapshot {
                     seq: p.seq,
                     position: p.position,
@@ -185,7 +186,9 @@ impl MapSnapshot {
                     descriptor: p.descriptor,
                     observations,
                     num_obs: p.num_obs as u64,
-                    reference: kf_index.get(&p.reference).copied(),
+                    // A stale reference falls back to the first observer, as
+                    // `Map::erase_observation` does, so a reload re-encodes identically.
+                    reference: kf_index.get(&p.reference).copied().or(first_observer),
                     first_kf_seq: p.first_kf_seq,
                     visible: p.visible,
                     found: p.found,

@@ -450,7 +450,10 @@ fn structural_corruption_is_reported_as_corrupt() {
     let np = base.map.points.len() as u32;
     let nk = base.map.keyframes.len() as u32;
     type Edit = fn(&mut SavedMap, u32, u32);
-    let edits: [(&str, Edit); 8] = [
+    let edits: [(&str, Edit); 9] = [
+        ("word", |s, _, _| {
+            s.map.keyframes[2].bow.push((u32::MAX - 1, 0.0))
+        }),
         ("map point", |s, np, _| {
             s.map.keyframes[1].map_points[0] = Some(np)
         }),
@@ -560,4 +563,28 @@ fn localisation_enters_the_map_anywhere_and_recovers_after_losing_track() {
             .zip(&shots)
             .all(|(t, s)| t.pose_wc.is_some() == s.is_some())
     );
+}
+
+#[test]
+fn a_missing_point_reference_falls_back_to_the_first_observer() {
+    let mut saved = built().saved.clone();
+    let i = saved
+        .map
+        .points
+        .iter()
+        .position(|p| p.observations.len() >= 2)
+        .expect("a point seen twice");
+    let first = saved.map.points[i].observations[0].0;
+    saved.map.points[i].reference = None;
+    let map = decode(&saved.to_bytes())
+        .expect("decode")
+        .into_map(MapParams::default());
+    let again = SavedMap::from_map(&map, &camera(), DEPTH_FACTOR, Some(vocab()));
+    assert_eq!(again.map.points[i].reference, Some(first));
+    // From then on the file is stable.
+    let bytes = again.to_bytes();
+    let map2 = decode(&bytes)
+        .expect("decode")
+        .into_map(MapParams::default());
+    assert!(encode(&map2, &camera(), DEPTH_FACTOR, Some(vocab())) == bytes);
 }
