@@ -10,6 +10,7 @@ pub mod loop_closing;
 pub mod map;
 pub mod matcher;
 pub mod orb;
+pub mod persist;
 pub mod system;
 pub mod tracking;
 pub mod vocab;

@@ -26,6 +26,26 @@ pub struct MapPointId {
     generation: u32,
 }
 
+impl KeyFrameId {
+    /// Id of the `index`-th keyframe of a map rebuilt from dense storage (generation 0).
+    pub(crate) fn dense(index: u32) -> Self {
+        Self {
+            index,
+            generation: 0,
+        }
+    }
+}
+
+impl MapPointId {
+    /// Id of the `index`-th point of a map rebuilt from dense storage (generation 0).
+    pub(crate) fn dense(index: u32) -> Self {
+        Self {
+            index,
+            generation: 0,
+        }
+    }
+}
+
 struct Slot<T> {
     generation: u32,
     value: Option<T>,
@@ -87,6 +107,22 @@ impl<T> Arena<T> {
         self.free.push(index);
         self.len -= 1;
         Some(v)
+    }
+
+    /// An arena holding `values` at indices 0.. with generation 0 and no free slot.
+    fn from_values(values: Vec<T>) -> Self {
+        let len = values.len();
+        Self {
+            slots: values
+                .into_iter()
+                .map(|v| Slot {
+                    generation: 0,
+                    value: Some(v),
+                })
+                .collect(),
+            free: Vec::new(),
+            len,
+        }
     }
 
     fn iter(&self) -> impl Iterator<Item = (u32, u32, &T)> {
@@ -298,6 +334,36 @@ pub struct Map {
     pub pyramid: ScalePyramid,
     /// The first keyframe (origin of the spanning tree).
     pub origin: Option<KeyFrameId>,
+}
+
+/// Dense rebuilding for map persistence ([`crate::persist`]).
+impl Map {
+    /// A map whose keyframe `i` has id `KeyFrameId::dense(i)` and point `j` id
+    /// `MapPointId::dense(j)`; nothing culled or replaced. References inside the entities must
+    /// already use dense ids (an out-of-range one is simply a stale id).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn from_dense(
+        pyramid: ScalePyramid,
+        params: MapParams,
+        keyframes: Vec<KeyFrame>,
+        points: Vec<MapPoint>,
+        origin: Option<KeyFrameId>,
+        next_kf_seq: u64,
+        next_mp_seq: u64,
+    ) -> Self {
+        let mut map = Self::new(pyramid, params);
+        map.keyframes = Arena::from_values(keyframes);
+        map.points = Arena::from_values(points);
+        map.next_kf_seq = next_kf_seq;
+        map.next_mp_seq = next_mp_seq;
+        map.origin = origin;
+        map
+    }
+
+    /// Next map point sequence number (the one [`Map::create_point`] assigns).
+    pub fn next_point_seq(&self) -> u64 {
+        self.next_mp_seq
+    }
 }
 
 impl Map {

@@ -128,6 +128,8 @@ pub struct System<E> {
     records: Vec<Record>,
     next_index: u64,
     vocab: Option<Vocabulary>,
+    /// Localisation mode: track a fixed map, never map (see [`System::from_map`]).
+    localization: bool,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -145,7 +147,46 @@ impl<E: FeatureExtractor> System<E> {
             records: Vec::new(),
             next_index: 0,
             vocab: None,
+            localization: false,
         }
+    }
+
+    /// A system in localisation mode on a previously built `map` (e.g. from
+    /// [`crate::persist::SavedMap::into_map`]): frames are relocalised into the map and then
+    /// tracked against it; no keyframe, map point or local mapping is ever created
+    /// (ORB-SLAM2 `ActivateLocalizationMode`). `vocab` must be the one the map was built with.
+    pub fn from_map(
+        extractor: E,
+        cam: RgbdCamera,
+        params: SystemParams,
+        map: Map,
+        vocab: Option<Vocabulary>,
+    ) -> Self {
+        let mut s = Self::new(extractor, cam, params);
+        s.vocab = vocab;
+        s.enter_localization(map);
+        s
+    }
+
+    /// Switches to localisation mode on `map` (see [`System::from_map`]), replacing the current
+    /// map and tracking state; meant to be called before the first frame. Poses of frames
+    /// already processed are frozen.
+    pub fn enter_localization(&mut self, map: Map) {
+        self.freeze_records();
+        self.map = map;
+        self.tracker = Tracker::new(self.cam.clone(), self.tracker.params.clone());
+        self.mapper.reset();
+        self.localization = true;
+    }
+
+    /// True in localisation mode.
+    pub fn is_localization(&self) -> bool {
+        self.localization
+    }
+
+    /// The vocabulary, if any.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.vocab.as_ref()
     }
 
     /// Uses `vocab` for bag-of-words matching and relocalisation candidates (without one,
@@ -192,9 +233,13 @@ impl<E: FeatureExtractor> System<E> {
             crate::dynapix::apply_class_mask(&mut frame, m);
         }
         let num_keypoints = frame.len();
-        let out = self
-            .tracker
-            .track(&mut self.map, frame, self.vocab.as_ref());
+        let out = if self.localization {
+            self.tracker
+                .track_localization(&mut self.map, frame, self.vocab.as_ref())
+        } else {
+            self.tracker
+                .track(&mut self.map, frame, self.vocab.as_ref())
+        };
         let t2 = Instant::now();
         // The frame pose relative to its reference keyframe is taken at tracking time, before
         // local BA or a loop correction moves the keyframe (ORB-SLAM2 stores `Tcr` in

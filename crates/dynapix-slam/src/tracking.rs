@@ -3,6 +3,7 @@
 //! keyframe creation with close map points, and relocalisation. Scratch state (local
 //! keyframes and points, candidate lists) lives here, keyed by id, never in the map entities.
 
+mod localization;
 mod relocalization;
 
 use std::collections::{BTreeMap, HashSet};

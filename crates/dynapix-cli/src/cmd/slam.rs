@@ -1,9 +1,12 @@
 //! `dynapix slam`: runs the RGB-D SLAM system on a sequence folder and writes
 //! `trajectory.txt` (TUM, every tracked frame, camera-to-world), `status.txt` (per frame:
 //! tracked / lost / not_initialized), `keyframes.txt` and `timing.csv` into `--out`.
+//! `--save-map FILE` saves the final map (`dynapix_slam::persist` format); `--localize MAP`
+//! loads one and only tracks against it (localisation mode: no new keyframes or map points).
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use dynapix_io::images::read_rgbd;
@@ -72,6 +75,15 @@ pub struct Args {
     /// Run without a vocabulary (brute-force keyframe matching).
     #[arg(long)]
     pub no_vocabulary: bool,
+    /// Save the map at the end of the run to FILE (binary map format, written atomically;
+    /// reuse it with --localize).
+    #[arg(long, value_name = "FILE", conflicts_with = "localize")]
+    pub save_map: Option<PathBuf>,
+    /// Localisation mode: load MAP (written by --save-map with the same camera, ORB settings
+    /// and vocabulary) and only track against it: frames are relocalised into the map, no
+    /// keyframe or map point is created, the map file is not changed.
+    #[arg(long, value_name = "MAP")]
+    pub localize: Option<PathBuf>,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -207,6 +219,80 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[i.min(v.len() - 1)]
 }
 
+/// Loads the map file `path`, checks it against the camera, ORB pyramid and vocabulary of
+/// `system` and switches `system` to localisation mode on it; every error names the file.
+/// Returns the summary line "localisation mode, map MAP (N keyframes, M points)".
+fn enter_localization<E: FeatureExtractor>(
+    system: &mut System<E>,
+    path: &Path,
+    settings: &Settings,
+) -> anyhow::Result<String> {
+    let t0 = Instant::now();
+    let bytes = std::fs::read(path).map_err(|source| dynapix_slam::persist::PersistError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let t1 = Instant::now();
+    let saved = dynapix_slam::persist::decode(&bytes)
+        .with_context(|| format!("cannot load map {}", path.display()))?;
+    let pyramid = system.map().pyramid.clone();
+    saved
+        .check_compatible(
+            system.camera(),
+            settings.depth_map_factor,
+            &pyramid,
+            system.vocabulary(),
+        )
+        .with_context(|| format!("cannot use map {} for this run", path.display()))?;
+    let t2 = Instant::now();
+    let note = format!(
+        "localisation mode, map {} ({} keyframes, {} points)",
+        path.display(),
+        saved.num_keyframes(),
+        saved.num_points()
+    );
+    let params = system.map().params.clone();
+    system.enter_localization(saved.into_map(params));
+    let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+    eprintln!(
+        "{note}: loaded in {:.1} ms (read {:.1}, decode + check {:.1}, rebuild {:.1}; {} bytes)",
+        t0.elapsed().as_secs_f64() * 1e3,
+        ms(t0, t1),
+        ms(t1, t2),
+        t2.elapsed().as_secs_f64() * 1e3,
+        bytes.len()
+    );
+    Ok(note)
+}
+
+/// Encodes the map of `system` and writes it atomically to `path`.
+fn save_map<E: FeatureExtractor>(
+    path: &Path,
+    system: &System<E>,
+    depth_factor: f64,
+) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let bytes = dynapix_slam::persist::encode(
+        system.map(),
+        system.camera(),
+        depth_factor,
+        system.vocabulary(),
+    );
+    let t1 = Instant::now();
+    dynapix_io::write_atomic(path, &bytes)
+        .with_context(|| format!("cannot save map {}", path.display()))?;
+    eprintln!(
+        "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
+        path.display(),
+        system.map().num_keyframes(),
+        system.map().num_points(),
+        bytes.len() as f64 / 1e6,
+        (t1 - t0).as_secs_f64() * 1e3,
+        t1.elapsed().as_secs_f64() * 1e3
+    );
+    Ok(())
+}
+
 /// Runs `dynapix slam`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Mode::Orbslam2 = args.mode;
@@ -232,6 +318,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         system = system.with_vocabulary(vocab);
     }
+    let localize_note = match &args.localize {
+        Some(path) => enter_localization(&mut system, path, &settings)?,
+        None => String::new(),
+    };
 
     // Images are decoded on a helper thread, a few frames ahead of tracking.
     let (tx, rx) = sync_channel(4);
@@ -340,6 +430,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         percentile(&mut t_track, 0.95),
         mean_total
     );
+    if !localize_note.is_empty() {
+        eprintln!("{localize_note}");
+    }
+    if let Some(path) = &args.save_map {
+        save_map(path, &system, settings.depth_map_factor)?;
+    }
     Ok(())
 }
 
