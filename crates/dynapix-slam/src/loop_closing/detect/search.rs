@@ -223,6 +223,7 @@ pub(crate) fn search_by_se3(
 /// Projects `points` into `kf` with pose `tcw` (the corrected pose of the loop) and matches
 /// each to the best keypoint not yet in `matched` within `th`·scale, with the viewing-angle
 /// (< 60°) and distance checks and Hamming ≤ `TH_LOW`. Returns the number of new matches.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn search_by_projection(
     map: &Map,
     cam: &RgbdCamera,
