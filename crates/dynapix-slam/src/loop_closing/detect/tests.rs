@@ -52,6 +52,10 @@ struct Run {
     frames: Vec<u64>,
     /// Wall time of the first detector's calls (measurement only).
     detect_seconds: f64,
+    /// Wall time of the calls that accepted a loop, ms (measurement only).
+    accepted_ms: Vec<f64>,
+    /// The system at the end of the run (its map).
+    system: Option<System<Orb>>,
 }
 
 impl Run {
@@ -100,7 +104,7 @@ impl Run {
             "{name}: {} keyframes examined {}, too soon {}, no candidates {}, candidates {cands} \
              (in {with_cands} keyframes), max groups {max_groups}, not consistent {}, \
              consistent candidates {consistent}, geometry rejected {}, too few total {}, \
-             accepted {}; detection {:.1} ms per keyframe",
+             accepted {}; detection {:.1} ms per keyframe, accepting calls {:?} ms",
             self.keyframes,
             self.diags.len(),
             self.count(DetectionOutcome::TooSoon),
@@ -110,6 +114,7 @@ impl Run {
             self.count(DetectionOutcome::TooFewTotalMatches),
             self.count(DetectionOutcome::Accepted),
             1e3 * self.detect_seconds / self.diags.len().max(1) as f64,
+            self.accepted_ms,
         );
         for (d, f) in self.diags.iter().zip(&self.frames) {
             if !d.candidates.is_empty() {
@@ -172,7 +177,11 @@ fn run_sequence(
         };
         let t0 = std::time::Instant::now();
         let ra = a.detect(map, kf, Some(&vocab));
-        detect_time += t0.elapsed();
+        let dt = t0.elapsed();
+        detect_time += dt;
+        if ra.is_some() {
+            run.accepted_ms.push(dt.as_secs_f64() * 1e3);
+        }
         let rb = b.detect(map, kf, Some(&vocab));
         assert_eq!(ra, rb, "two detectors disagree");
         assert_eq!(a.last_diagnostics(), b.last_diagnostics());
@@ -204,6 +213,7 @@ fn run_sequence(
         }
     }
     run.detect_seconds = detect_time.as_secs_f64();
+    run.system = Some(system);
     run
 }
 
@@ -306,6 +316,80 @@ fn loop_preset_closes_its_loop_with_the_ground_truth_transform() {
         assert!(dc < 0.12, "corrected pose {dc} m from ground truth");
         assert!(angle_deg(&d) < 2.5, "corrected pose {}° off", angle_deg(&d));
     }
+    verification_rejects_other_places(&run, &seq);
+}
+
+/// Forces the geometric verification of the loop's current keyframe against every other
+/// keyframe of the map (bypassing the database and the consistency test): keyframes whose
+/// ground-truth view points elsewhere (> 75° apart) must be rejected, and anything accepted
+/// must be a real revisit (< 60°).
+fn verification_rejects_other_places(run: &Run, seq: &dynapix_synth::Sequence) {
+    let (Some(system), Some(f)) = (&run.system, run.found.first()) else {
+        return;
+    };
+    let map = system.map();
+    let cur = f.m.current;
+    let Some(ck) = map.keyframe(cur) else { return };
+    let gt_cur = seq.pose(ck.frame_id as usize);
+    let (mut far, mut near_ok) = (0, 0);
+    for (id, k) in map.keyframes_sorted() {
+        if id == cur || ck.connections.contains_key(&id) {
+            continue;
+        }
+        let mut det = LoopDetector::new(system.camera().clone(), DetectionParams::default());
+        let got = det.compute_se3(map, cur, &[id]);
+        let rel = gt_cur.inverse() * seq.pose(k.frame_id as usize);
+        let ang = angle_deg(&rel);
+        let t = det
+            .last_diagnostics()
+            .trials
+            .first()
+            .cloned()
+            .unwrap_or_default();
+        // Error of the estimate against the ground-truth relative pose (as in the loop test).
+        let err = got.as_ref().map(|m| {
+            let expected = rel * k.pose;
+            let c = |t: &Se3| t.inverse().translation.vector;
+            (
+                (c(&m.corrected_pose) - c(&expected)).norm(),
+                angle_deg(&(m.corrected_pose * expected.inverse())),
+            )
+        });
+        eprintln!(
+            "  forced kf{}→kf{} (GT {:.0}°, {:.2} m): bow {} ransac {} refined {} total {} → {} {err:.3?}",
+            ck.seq,
+            k.seq,
+            ang,
+            rel.translation.vector.norm(),
+            t.bow_matches,
+            t.ransac_inliers,
+            t.refined_inliers,
+            det.last_diagnostics().total_matches,
+            if got.is_some() {
+                "accepted"
+            } else {
+                "rejected"
+            }
+        );
+        if ang > 75.0 {
+            far += 1;
+            assert!(got.is_none(), "kf{} accepted a view {ang:.0}° away", k.seq);
+        }
+        if let Some((dc, da)) = err {
+            assert!(ang < 60.0, "kf{} accepted a view {ang:.0}° away", k.seq);
+            // Wide baselines (up to ~45°) let depth errors of the map points through the χ²
+            // test, hence the loose bound; see the loop test.
+            assert!(
+                dc < 0.25 && da < 5.0,
+                "kf{}: estimate {dc} m, {da}° off",
+                k.seq
+            );
+            near_ok += 1;
+        }
+    }
+    eprintln!("forced verification: {far} distant keyframes rejected, {near_ok} near accepted");
+    assert!(far >= 3, "too few distant keyframes to test");
+    assert!(near_ok >= 1);
 }
 
 fn assert_no_loop(name: &str, run: &Run) {
