@@ -254,7 +254,8 @@ impl LoopDetector {
         &self.diagnostics
     }
 
-    /// Tells the detector a loop was closed at `kf` (the next 10 keyframes are not examined).
+    /// Tells the detector a loop was closed at `kf`: the next 10 keyframes (by sequence
+    /// number) are not examined, and the consistency groups start afresh.
     pub fn loop_closed(&mut self, map: &Map, kf: KeyFrameId) {
         if let Some(k) = map.keyframe(kf) {
             self.last_loop_seq = Some(k.seq);
@@ -449,8 +450,11 @@ impl LoopDetector {
                 };
                 let mut matches: Vec<Option<MapPointId>> = vec![None; cur.keys_un.len()];
                 for (j, &ok) in inliers.iter().enumerate() {
-                    if ok && let Some(&i1) = t.pair_index.get(j) {
-                        matches[i1] = t.matches[i1];
+                    if ok
+                        && let Some(&i1) = t.pair_index.get(j)
+                        && let (Some(slot), Some(&m)) = (matches.get_mut(i1), t.matches.get(i1))
+                    {
+                        *slot = m;
                     }
                 }
                 let ransac_inliers = inliers.iter().filter(|&&b| b).count();
@@ -473,8 +477,11 @@ impl LoopDetector {
                     t12r = tr;
                     let mut kept: Vec<Option<MapPointId>> = vec![None; matches.len()];
                     for (j, ok) in inl.iter().enumerate() {
-                        if *ok && let Some(&i1) = idx.get(j) {
-                            kept[i1] = matches[i1];
+                        if *ok
+                            && let Some(&i1) = idx.get(j)
+                            && let (Some(slot), Some(&m)) = (kept.get_mut(i1), matches.get(i1))
+                        {
+                            *slot = m;
                             n_in += 1;
                         }
                     }
