@@ -51,9 +51,11 @@ pub struct DetectionParams {
     pub accumulated_score_ratio: f64,
     /// Best covisible keyframes over which candidate scores are accumulated (10).
     pub accumulation_covisibles: usize,
-    /// A candidate is accepted when its covisibility group continues the groups of this many
-    /// consecutive previous keyframes (3, ORB-SLAM2 `mnCovisibilityConsistencyTh`; the
-    /// candidate is then seen in threshold + 1 consecutive keyframes).
+    /// A candidate is verified once its covisibility group (candidate + connected keyframes)
+    /// was found, overlapping from one keyframe to the next, in this many consecutive
+    /// keyframes (3, spec §6.6 "consistent over 3 consecutive KFs"). ORB-SLAM2's code counts
+    /// continuations of a group (`mnCovisibilityConsistencyTh = 3` is met at the 4th
+    /// keyframe); set 4 to reproduce that.
     pub consistency_threshold: usize,
     /// Ratio test of the bag-of-words keyframe matching (0.75).
     pub bow_ratio: f32,
@@ -74,6 +76,10 @@ pub struct DetectionParams {
     pub se3_search_radius: f32,
     /// χ² threshold of the relative-transform refinement (10).
     pub refine_chi2: f64,
+    /// χ² threshold of a refinement direction whose keypoint has depth (u, v, uR).
+    pub refine_chi2_depth: f64,
+    /// Use the keypoints' depth (virtual right coordinate) in the refinement.
+    pub refine_with_depth: bool,
     /// Refinement iterations before dropping outliers (5).
     pub refine_first_iterations: usize,
     /// Refinement iterations after dropping outliers (10) …
@@ -111,6 +117,8 @@ impl Default for DetectionParams {
             ransac_chi2: 9.21,
             se3_search_radius: 7.5,
             refine_chi2: 10.0,
+            refine_chi2_depth: 12.8,
+            refine_with_depth: true,
             refine_first_iterations: 5,
             refine_iterations_after_drop: 10,
             refine_iterations: 5,
@@ -179,6 +187,8 @@ pub struct DetectionDiagnostics {
     pub min_score: f64,
     /// Candidates returned by the database.
     pub candidates: Vec<KeyFrameId>,
+    /// Their sequence numbers.
+    pub candidate_seqs: Vec<u64>,
     /// Consistent groups carried to the next keyframe.
     pub consistent_groups: usize,
     /// Candidates consistent over enough consecutive keyframes.
@@ -244,7 +254,8 @@ impl LoopDetector {
         &self.diagnostics
     }
 
-    /// Tells the detector a loop was closed at `kf` (the next 10 keyframes are not examined).
+    /// Tells the detector a loop was closed at `kf`: the next 10 keyframes (by sequence
+    /// number) are not examined, and the consistency groups start afresh.
     pub fn loop_closed(&mut self, map: &Map, kf: KeyFrameId) {
         if let Some(k) = map.keyframe(kf) {
             self.last_loop_seq = Some(k.seq);
@@ -298,6 +309,10 @@ impl LoopDetector {
             .database
             .loop_candidates(map, kf, k, min_score, &settings);
         self.diagnostics.candidates = candidates.clone();
+        self.diagnostics.candidate_seqs = candidates
+            .iter()
+            .filter_map(|&c| map.keyframe(c).map(|k| k.seq))
+            .collect();
         if candidates.is_empty() {
             self.database.add(kf, k);
             self.groups.clear();
@@ -407,6 +422,7 @@ impl LoopDetector {
         }
         let refine = RefineSettings {
             chi2: p.refine_chi2,
+            chi2_depth: p.refine_chi2_depth,
             first_iterations: p.refine_first_iterations,
             second_iterations_after_drop: p.refine_iterations_after_drop,
             second_iterations: p.refine_iterations,
@@ -434,8 +450,11 @@ impl LoopDetector {
                 };
                 let mut matches: Vec<Option<MapPointId>> = vec![None; cur.keys_un.len()];
                 for (j, &ok) in inliers.iter().enumerate() {
-                    if ok && let Some(&i1) = t.pair_index.get(j) {
-                        matches[i1] = t.matches[i1];
+                    if ok
+                        && let Some(&i1) = t.pair_index.get(j)
+                        && let (Some(slot), Some(&m)) = (matches.get_mut(i1), t.matches.get(i1))
+                    {
+                        *slot = m;
                     }
                 }
                 let ransac_inliers = inliers.iter().filter(|&&b| b).count();
@@ -450,16 +469,19 @@ impl LoopDetector {
                     &p.matcher,
                 );
                 let guided = matches.iter().flatten().count();
-                let (pairs, idx) = refine_pairs(map, cur_id, t.id, &matches);
-                let refined = refine_relative(&self.cam.pinhole, &t12, &pairs, &refine);
+                let (pairs, idx) = refine_pairs(map, cur_id, t.id, &matches, p.refine_with_depth);
+                let refined = refine_relative(&self.cam, &t12, &pairs, &refine);
                 let mut n_in = 0;
                 let mut t12r = t12;
                 if let Some((tr, inl)) = refined {
                     t12r = tr;
                     let mut kept: Vec<Option<MapPointId>> = vec![None; matches.len()];
                     for (j, ok) in inl.iter().enumerate() {
-                        if *ok && let Some(&i1) = idx.get(j) {
-                            kept[i1] = matches[i1];
+                        if *ok
+                            && let Some(&i1) = idx.get(j)
+                            && let (Some(slot), Some(&m)) = (kept.get_mut(i1), matches.get(i1))
+                        {
+                            *slot = m;
                             n_in += 1;
                         }
                     }
@@ -527,6 +549,7 @@ fn refine_pairs(
     cur_id: KeyFrameId,
     loop_id: KeyFrameId,
     matches: &[Option<MapPointId>],
+    with_depth: bool,
 ) -> (Vec<RefinePair>, Vec<usize>) {
     let (Some(cur), Some(lk)) = (map.keyframe(cur_id), map.keyframe(loop_id)) else {
         return (Vec::new(), Vec::new());
@@ -557,12 +580,20 @@ fn refine_pairs(
             p2: transform(&lk.pose, &pt2.position),
             kp1: Vector2::new(k1.x as f64, k1.y as f64),
             kp2: Vector2::new(k2.x as f64, k2.y as f64),
+            ur1: right(cur, i1, with_depth),
+            ur2: right(lk, i2, with_depth),
             inv_sigma2_1: pyr.inv_sigma2_of(k1.octave as usize) as f64,
             inv_sigma2_2: pyr.inv_sigma2_of(k2.octave as usize) as f64,
         });
         idx.push(i1);
     }
     (pairs, idx)
+}
+
+/// Virtual right coordinate of keypoint `i` when it has depth and depth is used.
+fn right(kf: &crate::map::KeyFrame, i: usize, with_depth: bool) -> Option<f64> {
+    let ur = *kf.u_right.get(i)?;
+    (with_depth && ur >= 0.0).then_some(ur as f64)
 }
 
 /// Map points of `loop_id` and its covisible keyframes (covisibles by decreasing weight,

@@ -62,14 +62,10 @@ impl KeyFrameDatabase {
         }
     }
 
-    /// Number of live index entries (for tests).
+    /// Number of index entries, stale ones included (for tests).
     #[cfg(test)]
-    pub fn entries(&self, map: &Map) -> usize {
-        self.index
-            .values()
-            .flatten()
-            .filter(|id| map.keyframe(**id).is_some())
-            .count()
+    pub fn entries(&self) -> usize {
+        self.index.values().map(Vec::len).sum()
     }
 
     /// Loop candidates of keyframe `id`: keyframes not connected to it that share enough
@@ -172,9 +168,9 @@ impl<T: Ord + Copy> ConsistentGroups<T> {
 
     /// Feeds the candidates of one keyframe, each with its covisibility group (the candidate
     /// and its connected keyframes). A group sharing a keyframe with a previous group
-    /// continues it with count + 1 (each previous group is continued once), others start at
-    /// 0. Returns the candidates whose count reached `threshold`, i.e. that were consistent
-    /// with the groups of `threshold` consecutive previous keyframes.
+    /// continues it with count + 1 (each previous group is continued once), others start a
+    /// count of one. Returns the candidates whose count reached `threshold`, i.e. whose
+    /// groups were found in `threshold` consecutive keyframes (this one included).
     pub fn update(&mut self, candidates: &[(T, BTreeSet<T>)], threshold: usize) -> Vec<T> {
         let mut next: Vec<(BTreeSet<T>, usize)> = Vec::new();
         let mut continued = vec![false; self.groups.len()];
@@ -198,7 +194,10 @@ impl<T: Ord + Copy> ConsistentGroups<T> {
                 }
             }
             if !consistent_somewhere {
-                next.push((group.clone(), 0));
+                next.push((group.clone(), 1));
+                if threshold <= 1 {
+                    enough.push(*cand);
+                }
             }
         }
         self.groups = next;
@@ -215,16 +214,17 @@ mod tests {
     }
 
     #[test]
-    fn a_candidate_needs_threshold_consecutive_consistent_detections() {
+    fn a_candidate_seen_in_three_consecutive_keyframes_is_accepted() {
         let mut g = ConsistentGroups::default();
         let th = 3;
-        // Keyframe 1: candidate 10 (group 9,10,11) starts a group with count 0.
+        // Keyframe 1: candidate 10 (group 9,10,11) starts a group.
         assert!(g.update(&[(10, group(&[9, 10, 11]))], th).is_empty());
-        // Keyframes 2, 3: groups overlapping the previous ones → counts 1, 2.
+        // Keyframe 2: a group overlapping the previous one: seen twice, not enough.
         assert!(g.update(&[(11, group(&[10, 11, 12]))], th).is_empty());
-        assert!(g.update(&[(12, group(&[11, 12, 13]))], th).is_empty());
-        // Keyframe 4: count 3 reaches the threshold.
+        // Keyframe 3: seen in 3 consecutive keyframes.
         assert_eq!(g.update(&[(12, group(&[11, 12, 13]))], th), vec![12]);
+        // And it stays accepted while the chain goes on.
+        assert_eq!(g.update(&[(12, group(&[12, 13]))], th), vec![12]);
     }
 
     #[test]
@@ -233,20 +233,29 @@ mod tests {
         let mut g = ConsistentGroups::default();
         assert!(g.update(&[(10, group(&[10, 11]))], th).is_empty());
         assert!(g.update(&[(11, group(&[10, 11]))], th).is_empty());
-        // A keyframe without candidates breaks the chain.
+        // A keyframe without candidates breaks the chain: twice more is not enough…
         g.clear();
         assert!(g.update(&[(11, group(&[10, 11]))], th).is_empty());
         assert!(g.update(&[(11, group(&[10, 11]))], th).is_empty());
-        assert!(g.update(&[(11, group(&[10, 11]))], th).is_empty());
+        // … the third consecutive sighting is.
         assert_eq!(g.update(&[(11, group(&[10, 11]))], th), vec![11]);
-        // A disjoint group restarts at 0 and is not accepted even though another group is.
+        // A group disjoint from every previous one starts over and is not accepted, even
+        // when another candidate of the same keyframe is.
         let mut g = ConsistentGroups::default();
-        for _ in 0..3 {
-            g.update(&[(1, group(&[1, 2]))], th);
+        for _ in 0..2 {
+            assert!(g.update(&[(1, group(&[1, 2]))], th).is_empty());
         }
         let acc = g.update(&[(1, group(&[1, 2])), (50, group(&[50, 51]))], th);
         assert_eq!(acc, vec![1]);
         assert_eq!(g.len(), 2);
+        // Jumping between disjoint places never accumulates.
+        let mut g = ConsistentGroups::default();
+        for k in 0..6u32 {
+            assert!(
+                g.update(&[(k * 10, group(&[k * 10, k * 10 + 1]))], th)
+                    .is_empty()
+            );
+        }
     }
 
     #[test]

@@ -76,15 +76,18 @@ pub(crate) fn search_by_bow(
                 }
             }
             if best.0 < params.th_low && (best.0 as f32) < ratio * second as f32 {
-                let (Some(mp2), Some(k1), Some(k2)) = (
+                let (Some(mp2), Some(k1), Some(k2), Some(slot)) = (
                     kf2.map_points.get(best.1).copied().flatten(),
                     kf1.keys_un.get(i1),
                     kf2.keys_un.get(best.1),
+                    matches.get_mut(i1),
                 ) else {
                     continue;
                 };
-                matches[i1] = Some(mp2);
-                matched2[best.1] = true;
+                *slot = Some(mp2);
+                if let Some(m) = matched2.get_mut(best.1) {
+                    *m = true;
+                }
                 hist.add(k1.angle, k2.angle, i1);
                 n += 1;
             }
@@ -223,6 +226,7 @@ pub(crate) fn search_by_se3(
 /// Projects `points` into `kf` with pose `tcw` (the corrected pose of the loop) and matches
 /// each to the best keypoint not yet in `matched` within `th`·scale, with the viewing-angle
 /// (< 60°) and distance checks and Hamming ≤ `TH_LOW`. Returns the number of new matches.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn search_by_projection(
     map: &Map,
     cam: &RgbdCamera,
