@@ -108,12 +108,9 @@ fn loop_preset_closes_the_loop_and_halves_the_ate() {
 #[test]
 fn no_false_loops_on_synthetic_walking_presets() {
     let tmp = tempfile::tempdir().unwrap();
-    for preset in [
-        "walking_xyz",
-        "walking_static",
-        "walking_rpy",
-        "walking_halfsphere",
-    ] {
+    // walking_xyz and walking_halfsphere are covered by the detector's own tests in
+    // dynapix-slam (`loop_closing::detect::tests`), with per-step diagnostics.
+    for preset in ["walking_static", "walking_rpy"] {
         let seq = tmp.path().join(preset);
         synth(preset, 300, &seq);
         let out = tmp.path().join(format!("{preset}_out"));
