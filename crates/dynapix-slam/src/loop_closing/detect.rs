@@ -26,7 +26,7 @@ mod tests;
 use std::collections::BTreeSet;
 
 use dynapix_geometry::Se3;
-use nalgebra::Vector2;
+use nalgebra::{Vector2, Vector3};
 
 use crate::frame::{RgbdCamera, transform};
 use crate::map::{KeyFrameId, Map, MapPointId};
@@ -380,31 +380,14 @@ impl LoopDetector {
             }
             let mut pairs = Vec::new();
             let mut pair_index = Vec::new();
-            for (i1, m) in matches.iter().enumerate() {
-                let Some(mp2) = m else { continue };
-                let Some(pt1) = cur
-                    .map_points
-                    .get(i1)
-                    .copied()
-                    .flatten()
-                    .and_then(|id| map.point(id))
-                else {
-                    continue;
-                };
-                let Some(pt2) = map.point(*mp2) else { continue };
-                let Some(&i2) = pt2.observations.get(&cand) else {
-                    continue;
-                };
-                let (Some(kp1), Some(kp2)) = (cur.keys_un.get(i1), ck.keys_un.get(i2)) else {
-                    continue;
-                };
+            for m in matched_pairs(map, cur, cand, ck, &matches) {
                 pairs.push(PointPair {
-                    p1: transform(&cur.pose, &pt1.position),
-                    p2: transform(&ck.pose, &pt2.position),
-                    max_err1: p.ransac_chi2 * pyr.sigma2_of(kp1.octave as usize) as f64,
-                    max_err2: p.ransac_chi2 * pyr.sigma2_of(kp2.octave as usize) as f64,
+                    p1: m.p1,
+                    p2: m.p2,
+                    max_err1: p.ransac_chi2 * pyr.sigma2_of(m.kp1.octave as usize) as f64,
+                    max_err2: p.ransac_chi2 * pyr.sigma2_of(m.kp2.octave as usize) as f64,
                 });
-                pair_index.push(i1);
+                pair_index.push(m.i1);
             }
             let solver = Se3Ransac::new(
                 pairs,
@@ -557,37 +540,61 @@ fn refine_pairs(
     let pyr = &map.pyramid;
     let mut pairs = Vec::new();
     let mut idx = Vec::new();
-    for (i1, m) in matches.iter().enumerate() {
-        let Some(mp2) = m else { continue };
-        let Some(pt1) = cur
+    for m in matched_pairs(map, cur, loop_id, lk, matches) {
+        let (k1, k2) = (m.kp1, m.kp2);
+        pairs.push(RefinePair {
+            p1: m.p1,
+            p2: m.p2,
+            kp1: Vector2::new(k1.x as f64, k1.y as f64),
+            kp2: Vector2::new(k2.x as f64, k2.y as f64),
+            ur1: right(cur, m.i1, with_depth),
+            ur2: right(lk, m.i2, with_depth),
+            inv_sigma2_1: pyr.inv_sigma2_of(k1.octave as usize) as f64,
+            inv_sigma2_2: pyr.inv_sigma2_of(k2.octave as usize) as f64,
+        });
+        idx.push(m.i1);
+    }
+    (pairs, idx)
+}
+
+/// A keypoint `i1` of the current keyframe with its own map point, matched to a point of the
+/// other keyframe observed there at keypoint `i2`; both points in their camera's coordinates.
+struct MatchedPair<'a> {
+    i1: usize,
+    i2: usize,
+    p1: Vector3<f64>,
+    p2: Vector3<f64>,
+    kp1: &'a crate::features::KeyPoint,
+    kp2: &'a crate::features::KeyPoint,
+}
+
+/// The usable pairs of `matches` (per keypoint of `cur`: a map point of `other_id`'s
+/// neighbourhood), skipping keypoints without a map point and points `other_id` does not see.
+fn matched_pairs<'a>(
+    map: &'a Map,
+    cur: &'a crate::map::KeyFrame,
+    other_id: KeyFrameId,
+    other: &'a crate::map::KeyFrame,
+    matches: &'a [Option<MapPointId>],
+) -> impl Iterator<Item = MatchedPair<'a>> + 'a {
+    matches.iter().enumerate().filter_map(move |(i1, m)| {
+        let pt1 = cur
             .map_points
             .get(i1)
             .copied()
             .flatten()
-            .and_then(|id| map.point(id))
-        else {
-            continue;
-        };
-        let Some(pt2) = map.point(*mp2) else { continue };
-        let Some(&i2) = pt2.observations.get(&loop_id) else {
-            continue;
-        };
-        let (Some(k1), Some(k2)) = (cur.keys_un.get(i1), lk.keys_un.get(i2)) else {
-            continue;
-        };
-        pairs.push(RefinePair {
+            .and_then(|id| map.point(id))?;
+        let pt2 = map.point((*m)?)?;
+        let &i2 = pt2.observations.get(&other_id)?;
+        Some(MatchedPair {
+            i1,
+            i2,
             p1: transform(&cur.pose, &pt1.position),
-            p2: transform(&lk.pose, &pt2.position),
-            kp1: Vector2::new(k1.x as f64, k1.y as f64),
-            kp2: Vector2::new(k2.x as f64, k2.y as f64),
-            ur1: right(cur, i1, with_depth),
-            ur2: right(lk, i2, with_depth),
-            inv_sigma2_1: pyr.inv_sigma2_of(k1.octave as usize) as f64,
-            inv_sigma2_2: pyr.inv_sigma2_of(k2.octave as usize) as f64,
-        });
-        idx.push(i1);
-    }
-    (pairs, idx)
+            p2: transform(&other.pose, &pt2.position),
+            kp1: cur.keys_un.get(i1)?,
+            kp2: other.keys_un.get(i2)?,
+        })
+    })
 }
 
 /// Virtual right coordinate of keypoint `i` when it has depth and depth is used.
