@@ -226,44 +226,8 @@ impl Tracker {
             }
             return out;
         }
-        self.refresh_last_frame(map);
-        let mut ok;
-        if self.state == TrackingState::Ok {
-            let just_relocalised = frame.id < self.last_reloc_frame + 2;
-            if self.velocity.is_none() || just_relocalised {
-                ok = self.track_reference_keyframe(map, &mut frame, vocab);
-            } else {
-                ok = self.track_with_motion_model(map, &mut frame);
-                if !ok {
-                    ok = self.track_reference_keyframe(map, &mut frame, vocab);
-                }
-            }
-        } else {
-            if let Some(v) = vocab {
-                frame.compute_bow(v, self.params.bow_group_depth);
-            }
-            ok = self.relocalize(map, &mut frame);
-            out.relocalised = ok;
-        }
-        frame.reference = self.reference_kf;
+        let ok = self.track_against_map(map, &mut frame, vocab, &mut out);
         if ok {
-            ok = self.track_local_map(map, &mut frame);
-        }
-        self.state = if ok {
-            TrackingState::Ok
-        } else {
-            TrackingState::Lost
-        };
-        out.state = self.state;
-        out.inliers = self.inliers;
-        if ok {
-            if let (Some(cur), Some(last)) =
-                (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
-            {
-                self.velocity = Some(normalized(&(cur * last.inverse())));
-            } else {
-                self.velocity = None;
-            }
             // Matches to points that lost all observations are dropped.
             for m in frame.map_points.iter_mut() {
                 if let Some(id) = m
@@ -302,6 +266,59 @@ impl Tracker {
             self.last_relative = None;
         }
         out
+    }
+
+    /// The tracking steps both modes share (ORB-SLAM2 `Tracking::Track` between the state
+    /// check and the keyframe decision): last-frame refresh, motion-model or reference-keyframe
+    /// tracking while tracked and relocalisation otherwise, local-map tracking, then state,
+    /// inlier count and the constant-velocity model. Returns whether the frame is tracked.
+    pub(crate) fn track_against_map(
+        &mut self,
+        map: &mut Map,
+        frame: &mut Frame,
+        vocab: Option<&Vocabulary>,
+        out: &mut TrackOutcome,
+    ) -> bool {
+        self.refresh_last_frame(map);
+        let mut ok;
+        if self.state == TrackingState::Ok {
+            let just_relocalised = frame.id < self.last_reloc_frame + 2;
+            if self.velocity.is_none() || just_relocalised {
+                ok = self.track_reference_keyframe(map, frame, vocab);
+            } else {
+                ok = self.track_with_motion_model(map, frame);
+                if !ok {
+                    ok = self.track_reference_keyframe(map, frame, vocab);
+                }
+            }
+        } else {
+            if let Some(v) = vocab {
+                frame.compute_bow(v, self.params.bow_group_depth);
+            }
+            ok = map.num_keyframes() > 0 && self.relocalize(map, frame);
+            out.relocalised = ok;
+        }
+        frame.reference = self.reference_kf;
+        if ok {
+            ok = self.track_local_map(map, frame);
+        }
+        self.state = if ok {
+            TrackingState::Ok
+        } else {
+            TrackingState::Lost
+        };
+        out.state = self.state;
+        out.inliers = self.inliers;
+        if ok {
+            if let (Some(cur), Some(last)) =
+                (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
+            {
+                self.velocity = Some(normalized(&(cur * last.inverse())));
+            } else {
+                self.velocity = None;
+            }
+        }
+        ok
     }
 
     fn record_last(&mut self, map: &Map, frame: Frame) {

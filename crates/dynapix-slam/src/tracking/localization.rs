@@ -11,8 +11,8 @@
 //! would need the last-frame point creation ORB-SLAM2 does only in that mode; on maps of the
 //! same scene relocalisation recovers within a frame.
 
-use super::{TrackOutcome, Tracker, TrackingState};
-use crate::frame::{Frame, normalized};
+use super::{TrackOutcome, Tracker};
+use crate::frame::Frame;
 use crate::map::Map;
 use crate::vocab::Vocabulary;
 
@@ -35,44 +35,8 @@ impl Tracker {
             reset_requested: false,
             relocalised: false,
         };
-        self.refresh_last_frame(map);
-        let mut ok;
-        if self.state == TrackingState::Ok {
-            let just_relocalised = frame.id < self.last_reloc_frame + 2;
-            if self.velocity.is_none() || just_relocalised {
-                ok = self.track_reference_keyframe(map, &mut frame, vocab);
-            } else {
-                ok = self.track_with_motion_model(map, &mut frame);
-                if !ok {
-                    ok = self.track_reference_keyframe(map, &mut frame, vocab);
-                }
-            }
-        } else {
-            if let Some(v) = vocab {
-                frame.compute_bow(v, self.params.bow_group_depth);
-            }
-            ok = map.num_keyframes() > 0 && self.relocalize(map, &mut frame);
-            out.relocalised = ok;
-        }
-        frame.reference = self.reference_kf;
+        let ok = self.track_against_map(map, &mut frame, vocab, &mut out);
         if ok {
-            ok = self.track_local_map(map, &mut frame);
-        }
-        self.state = if ok {
-            TrackingState::Ok
-        } else {
-            TrackingState::Lost
-        };
-        out.state = self.state;
-        out.inliers = self.inliers;
-        if ok {
-            if let (Some(cur), Some(last)) =
-                (frame.pose, self.last_frame.as_ref().and_then(|l| l.pose))
-            {
-                self.velocity = Some(normalized(&(cur * last.inverse())));
-            } else {
-                self.velocity = None;
-            }
             for i in 0..frame.len() {
                 if frame.outlier[i] {
                     frame.map_points[i] = None;
