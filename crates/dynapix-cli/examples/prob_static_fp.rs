@@ -17,6 +17,8 @@ use anyhow::{Context, bail};
 use dynapix_io::images::{read_depth_raw, read_mask, read_prob_png_raw, read_rgb};
 use nalgebra::UnitQuaternion;
 
+/// Index of the moving pixels in the accumulators.
+const MOV: usize = 6;
 /// Width (px) of the band along the image border.
 const BORDER: u32 = 12;
 /// Depth jump (m) to a pixel ≤ 2 px away that marks a depth edge.
@@ -63,13 +65,16 @@ impl Acc {
 }
 
 /// Regions of a static pixel.
-const REGIONS: [&str; 5] = [
+const REGIONS: [&str; 6] = [
     "static all",
     "static border",
     "static depth edge",
     "static textured",
     "static interior",
+    "static ≤8 px of mover",
 ];
+/// Distance (px, Chebyshev) to a moving pixel within which a static pixel counts as "near".
+const NEAR: i32 = 8;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -91,8 +96,8 @@ fn main() -> anyhow::Result<()> {
     let orb = dynapix_slam::orb::OrbExtractor::default();
     // Keypoints: [static total, static P > γ_add, moving total, moving P > γ_add].
     let mut kp_counts = [0u64; 4];
-    let mut total = [Acc::default(); 6];
-    let mut per_sec: Vec<[Acc; 6]> = Vec::new();
+    let mut total = [Acc::default(); 7];
+    let mut per_sec: Vec<[Acc; 7]> = Vec::new();
     let mut csv = String::from(
         "t,rot_deg_per_s,mean_p_static,share_p05_static,share_p10_static,mean_p_border,mean_p_depth_edge,mean_p_textured,mean_p_interior,mean_p_moving,moving_share\n",
     );
@@ -123,12 +128,33 @@ fn main() -> anyhow::Result<()> {
             kp_counts[k] += 1;
             kp_counts[k + 1] += (p > GAMMA_ADD) as u64;
         }
-        let mut acc = [Acc::default(); 6];
+        let near = {
+            let mut rows = vec![false; (w * h) as usize];
+            for y in 0..h as i32 {
+                for x in 0..w as i32 {
+                    let lo = (x - NEAR).max(0);
+                    let hi = (x + NEAR).min(w as i32 - 1);
+                    rows[(y as u32 * w + x as u32) as usize] =
+                        (lo..=hi).any(|xx| mask.get_pixel(xx as u32, y as u32).0[0] != 0);
+                }
+            }
+            let mut out = vec![false; (w * h) as usize];
+            for y in 0..h as i32 {
+                for x in 0..w as i32 {
+                    let lo = (y - NEAR).max(0);
+                    let hi = (y + NEAR).min(h as i32 - 1);
+                    out[(y as u32 * w + x as u32) as usize] =
+                        (lo..=hi).any(|yy| rows[(yy as u32 * w + x as u32) as usize]);
+                }
+            }
+            out
+        };
+        let mut acc = [Acc::default(); 7];
         for y in 0..h {
             for x in 0..w {
                 let p = 1.0 - prob.get_pixel(x, y).0[0] as f32 / 1000.0;
                 if mask.get_pixel(x, y).0[0] != 0 {
-                    acc[5].add(p);
+                    acc[MOV].add(p);
                     continue;
                 }
                 acc[0].add(p);
@@ -163,6 +189,9 @@ fn main() -> anyhow::Result<()> {
                 if textured && !border && !edge {
                     acc[3].add(p);
                 }
+                if near[(y * w + x) as usize] {
+                    acc[5].add(p);
+                }
             }
         }
         let t = a.t_rgb;
@@ -195,14 +224,14 @@ fn main() -> anyhow::Result<()> {
             m(&acc[2]),
             m(&acc[3]),
             m(&acc[4]),
-            m(&acc[5]),
-            acc[5].n as f64 / (w * h) as f64
+            m(&acc[MOV]),
+            acc[MOV].n as f64 / (w * h) as f64
         )?;
         let sec = t.floor() as usize;
         if per_sec.len() <= sec {
-            per_sec.resize(sec + 1, [Acc::default(); 6]);
+            per_sec.resize(sec + 1, [Acc::default(); 7]);
         }
-        for k in 0..6 {
+        for k in 0..7 {
             total[k].merge(&acc[k]);
             per_sec[sec][k].merge(&acc[k]);
         }
@@ -211,7 +240,7 @@ fn main() -> anyhow::Result<()> {
     for (k, name) in REGIONS.iter().enumerate() {
         println!("{name:<20} {}", total[k].fmt());
     }
-    println!("{:<20} {}", "moving (mask)", total[5].fmt());
+    println!("{:<20} {}", "moving (mask)", total[MOV].fmt());
     println!(
         "ORB keypoints (1000/frame): static {} of which P > γ_add {}; moving {} of which P > γ_add {}",
         kp_counts[0], kp_counts[1], kp_counts[2], kp_counts[3]
@@ -228,12 +257,13 @@ fn main() -> anyhow::Result<()> {
             }
         };
         println!(
-            "{s:2} {} | {:.4} | {:.4} | {:.4} | {:.4}",
+            "{s:2} {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4}",
             a[0].fmt(),
             m(&a[1]),
             m(&a[2]),
             m(&a[3]),
-            m(&a[5])
+            m(&a[5]),
+            m(&a[MOV])
         );
     }
     if let Some(p) = csv_out {
