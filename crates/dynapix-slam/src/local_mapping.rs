@@ -219,6 +219,7 @@ impl LocalMapper {
         let pyr = map.pyramid.clone();
         let ratio_factor = self.params.ratio_factor_slack * pyr.scale_factor;
         let mut created = 0;
+        let mut gated = 0usize;
         for kf2 in neighbours {
             let (Some(k1), Some(k2)) = (map.keyframe(kf1), map.keyframe(kf2)) else {
                 continue;
@@ -334,6 +335,7 @@ impl LocalMapper {
                 if !may_birth_in_keyframe(map, kf1, i1, BirthSource::Triangulation)
                     || !may_birth_in_keyframe(map, kf2, i2, BirthSource::Triangulation)
                 {
+                    gated += 1;
                     continue;
                 }
                 if let Some(id) = map.create_point(x, kf1, i1) {
@@ -345,6 +347,9 @@ impl LocalMapper {
                     created += 1;
                 }
             }
+        }
+        if gated > 0 {
+            tracing::debug!(gated, created, "triangulated points not born (γ_add)");
         }
         created
     }

@@ -662,7 +662,14 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
-        crate::dynapix::update_matched_points(map, frame);
+        let upd = crate::dynapix::update_matched_points(map, frame);
+        if upd.deleted > 0 {
+            tracing::debug!(
+                frame = frame.id,
+                deleted = upd.deleted,
+                "map points removed at γ_del"
+            );
+        }
         let mut inliers = 0;
         for i in 0..frame.len() {
             let Some(id) = frame.map_points[i] else {
@@ -746,6 +753,7 @@ impl Tracker {
             .collect();
         by_depth.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut n_points = 0;
+        let mut gated = 0usize;
         for (z, i) in by_depth {
             let create = match frame.map_points[i] {
                 None => true,
@@ -754,7 +762,14 @@ impl Tracker {
             if create {
                 frame.map_points[i] = None;
                 map.set_keyframe_match(kf, i, None);
-                if may_birth_in_frame(&map.params.dynapix, frame, i, BirthSource::TrackingKeyFrame)
+                let born = may_birth_in_frame(
+                    &map.params.dynapix,
+                    frame,
+                    i,
+                    BirthSource::TrackingKeyFrame,
+                );
+                gated += usize::from(!born);
+                if born
                     && let Some(x) = frame.unproject(i, &self.cam)
                     && let Some(id) = map.create_point(x, kf, i)
                 {
@@ -765,6 +780,9 @@ impl Tracker {
             if z as f64 > self.cam.th_depth && n_points > self.params.kf_new_points {
                 break;
             }
+        }
+        if gated > 0 {
+            tracing::debug!(frame = frame.id, gated, "keyframe points not born (γ_add)");
         }
         self.last_kf_frame = frame.id;
         Some(kf)
