@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
-use crate::features::Descriptor;
+use crate::features::{Descriptor, KeyPoint};
 use crate::frame::{DepthImage, transform};
 use crate::map::KeyFrameId;
 use crate::system::{FeatureExtractor, FrameInput, FrameResult, System, SystemParams};
