@@ -210,15 +210,33 @@ impl SavedMap {
 
     /// Serialises to the map file format (header + payload).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let payload = encode_payload(self);
-        let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
-        out.extend_from_slice(&MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&0u32.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        out.extend_from_slice(&payload);
+        // The payload is serialised in place behind a zeroed header, which is then filled in
+        // (saves copying a multi-megabyte payload).
+        let mut out = vec![0u8; HEADER_LEN];
+        out.reserve(self.payload_size_hint());
+        // Cannot fail: every payload type is a plain struct, tuple, fixed array, `Option` or
+        // `Vec` (known lengths), and the output is a growable vector.
+        let mut out = postcard::to_extend(self, out).expect("postcard serialisation of a map");
+        let payload = out.get(HEADER_LEN..).unwrap_or_default();
+        let len = (payload.len() as u64).to_le_bytes();
+        let crc = crc32fast::hash(payload).to_le_bytes();
+        let header = [
+            &MAGIC[..],
+            &FORMAT_VERSION.to_le_bytes(),
+            &[0; 4],
+            &len,
+            &crc,
+        ]
+        .concat();
+        out[..HEADER_LEN].copy_from_slice(&header);
         out
+    }
+
+    /// Rough payload size (per-keypoint and per-point bytes of a typical map), so encoding
+    /// grows its buffer at most once or twice.
+    fn payload_size_hint(&self) -> usize {
+        let keys: usize = self.map.keyframes.iter().map(|k| k.keys.len()).sum();
+        keys * 110 + self.map.points.len() * 120
     }
 
     /// Number of keyframes in the map.
@@ -376,13 +394,6 @@ fn header_field<const N: usize>(bytes: &[u8], at: usize) -> Result<[u8; N], Pers
     let mut a = [0u8; N];
     a.copy_from_slice(s);
     Ok(a)
-}
-
-/// The postcard payload of `saved`.
-fn encode_payload(saved: &SavedMap) -> Vec<u8> {
-    // Cannot fail: every payload type is a plain struct, tuple, fixed array, `Option` or
-    // `Vec` (known lengths), and the output is a growable vector.
-    postcard::to_allocvec(saved).expect("postcard serialisation of the map payload")
 }
 
 /// Parses and validates a payload without the header checks (also the fuzzing entry point:
