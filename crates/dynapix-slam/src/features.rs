@@ -1,7 +1,7 @@
 //! Keypoint and descriptor types shared by the ORB extractor, the matcher and the tracker.
 
 /// An ORB keypoint, coordinates at pyramid level 0 (as ORB-SLAM2's `mvKeys`).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KeyPoint {
     /// Column, level-0 pixels.
     pub x: f32,

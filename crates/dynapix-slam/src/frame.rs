@@ -105,7 +105,7 @@ impl ScalePyramid {
 }
 
 /// An RGB-D camera in ORB-SLAM2's virtual-stereo form.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RgbdCamera {
     /// Intrinsics and distortion.
     pub pinhole: PinholeCamera,

@@ -1,31 +1,38 @@
 //! Map save/load (ORB-SLAM2 has none upstream; issue 7 adds it for `--localize`): a versioned
 //! binary map file, encoded and decoded in memory so the library stays free of I/O.
 //!
-//! Layout (all integers and floats little-endian):
+//! Layout: a fixed little-endian header, then a [`postcard`] payload (serde; integers and
+//! lengths as LEB128 varints, floats as little-endian IEEE bits, no field names):
 //!
 //! | bytes | content |
 //! |---|---|
 //! | 8 | magic `DPXMAP\0\0` |
-//! | 4 | format version (u32, [`FORMAT_VERSION`]) |
-//! | 4 | reserved flags (u32, 0) |
-//! | 8 | payload length (u64) |
-//! | 4 | CRC-32 (IEEE) of the payload |
-//! | n | payload |
+//! | 4 | format version (u32 LE, [`FORMAT_VERSION`]) |
+//! | 4 | reserved flags (u32 LE, 0) |
+//! | 8 | payload length (u64 LE) |
+//! | 4 | CRC-32 (IEEE, LE) of the payload |
+//! | n | payload: [`SavedMap`] serialised with postcard |
 //!
 //! The payload holds the producer string, the camera (intrinsics, distortion, `bf`,
-//! `th_depth`, fps, max depth, depth factor), the identity of the vocabulary the BoW vectors
-//! were computed with, and the [`MapSnapshot`]: pyramid, sequence counters, keyframes (pose,
-//! keypoints raw and undistorted, descriptors, depth, uR, weights, dynamic flags, matches, BoW
-//! and feature vectors, covisibility, spanning tree, loop edges, ids and timestamp) and map
-//! points (position, normal, distances, descriptor, observations, reference, counters,
-//! weight). Ids become dense indices; grids are rebuilt on load. Culled-keyframe links and the
-//! replaced-point table are not saved: they only serve to recompose the trajectory of the
-//! run that built the map.
+//! `th_depth`, fps, max depth), the depth factor, the identity of the vocabulary the BoW
+//! vectors were computed with, and the [`MapSnapshot`]: pyramid, sequence counters, keyframes
+//! (pose, keypoints raw and undistorted, descriptors, depth, uR, weights, dynamic flags,
+//! matches, BoW and feature vectors, covisibility, spanning tree, loop edges, ids and
+//! timestamp) and map points (position, normal, distances, descriptor, observations,
+//! reference, counters, weight). Ids become dense indices; grids are rebuilt on load.
+//! Culled-keyframe links and the replaced-point table are not saved: they only serve to
+//! recompose the trajectory of the run that built the map. Version 1 was a hand-written
+//! fixed-width encoding of the same fields; this build refuses it (`UnsupportedVersion`).
 //!
-//! [`decode`] never panics and never allocates more than the input can hold: every byte string
-//! gives a validated [`SavedMap`] or a typed [`PersistError`].
+//! Field order is the declaration order of the serde structs, so changing a payload struct
+//! changes the format and needs a [`FORMAT_VERSION`] bump. Encoding is deterministic (no maps
+//! with unstable order in the payload), so the same map always gives the same bytes.
+//!
+//! [`decode`] never panics: every byte string gives a validated [`SavedMap`] or a typed
+//! [`PersistError`]. Memory stays bounded by the input: postcard reads each element from the
+//! input before storing it, and serde preallocates at most 1 MiB for a sequence whatever
+//! length it claims.
 
-mod codec;
 mod snapshot;
 
 #[cfg(test)]
@@ -33,21 +40,18 @@ mod tests;
 
 use std::path::PathBuf;
 
-use dynapix_geometry::{PinholeCamera, Se3};
-use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
 
-use crate::features::KeyPoint;
 use crate::frame::{RgbdCamera, ScalePyramid};
 use crate::map::{Map, MapParams};
 use crate::vocab::Vocabulary;
-use codec::{Reader, Writer};
 
 pub use snapshot::{KeyFrameSnapshot, MapPointSnapshot, MapSnapshot};
 
 /// Magic bytes opening every map file.
 pub const MAGIC: [u8; 8] = *b"DPXMAP\0\0";
 /// Format version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Size of the fixed header before the payload.
 pub const HEADER_LEN: usize = 28;
 
@@ -123,7 +127,7 @@ impl PersistError {
 
 /// Identity of a vocabulary: its shape and the FNV-1a 64 checksum of its binary serialisation
 /// (the one [`Vocabulary::to_bytes`] ends with), so equal trees give equal ids.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct VocabularyId {
     /// Checksum of the serialised vocabulary.
     pub hash: u64,
@@ -167,8 +171,8 @@ fn vocab_name(v: Option<VocabularyId>) -> String {
     v.map_or_else(|| "none".to_string(), |v| v.to_string())
 }
 
-/// Everything a map file holds.
-#[derive(Clone, Debug, PartialEq)]
+/// Everything a map file holds (the payload, in field order).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SavedMap {
     /// Program and version that wrote the file.
     pub producer: String,
@@ -206,17 +210,33 @@ impl SavedMap {
 
     /// Serialises to the map file format (header + payload).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut w = Writer::new();
-        write_payload(&mut w, self);
-        let payload = w.buf;
-        let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
-        out.extend_from_slice(&MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&0u32.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        out.extend_from_slice(&payload);
+        // The payload is serialised in place behind a zeroed header, which is then filled in
+        // (saves copying a multi-megabyte payload).
+        let mut out = vec![0u8; HEADER_LEN];
+        out.reserve(self.payload_size_hint());
+        // Cannot fail: every payload type is a plain struct, tuple, fixed array, `Option` or
+        // `Vec` (known lengths), and the output is a growable vector.
+        let mut out = postcard::to_extend(self, out).expect("postcard serialisation of a map");
+        let payload = out.get(HEADER_LEN..).unwrap_or_default();
+        let len = (payload.len() as u64).to_le_bytes();
+        let crc = crc32fast::hash(payload).to_le_bytes();
+        let header = [
+            &MAGIC[..],
+            &FORMAT_VERSION.to_le_bytes(),
+            &[0; 4],
+            &len,
+            &crc,
+        ]
+        .concat();
+        out[..HEADER_LEN].copy_from_slice(&header);
         out
+    }
+
+    /// Rough payload size (per-keypoint and per-point bytes of a typical map), so encoding
+    /// grows its buffer at most once or twice.
+    fn payload_size_hint(&self) -> usize {
+        let keys: usize = self.map.keyframes.iter().map(|k| k.keys.len()).sum();
+        keys * 110 + self.map.points.len() * 120
     }
 
     /// Number of keyframes in the map.
@@ -325,34 +345,34 @@ pub fn encode(
 
 /// Decodes and validates a map file's bytes.
 pub fn decode(bytes: &[u8]) -> Result<SavedMap, PersistError> {
-    let mut r = Reader::new(bytes);
-    let magic = r.take(MAGIC.len()).map_err(|_| {
+    let Some(magic) = bytes.get(..MAGIC.len()) else {
         // A short prefix of a real map file is a truncation, anything else is not a map.
-        if MAGIC.starts_with(bytes) {
+        return Err(if MAGIC.starts_with(bytes) {
             PersistError::Truncated
         } else {
             PersistError::BadMagic
-        }
-    })?;
+        });
+    };
     if magic != MAGIC {
         return Err(PersistError::BadMagic);
     }
-    let version = r.u32()?;
+    let version = u32::from_le_bytes(header_field(bytes, 8)?);
     if version != FORMAT_VERSION {
         return Err(PersistError::UnsupportedVersion {
             found: version,
             supported: FORMAT_VERSION,
         });
     }
-    let flags = r.u32()?;
-    let len = r.u64()?;
-    let crc = r.u32()?;
+    let flags = u32::from_le_bytes(header_field(bytes, 12)?);
+    let len = u64::from_le_bytes(header_field(bytes, 16)?);
+    let crc = u32::from_le_bytes(header_field(bytes, 24)?);
     if flags != 0 {
         return Err(PersistError::corrupt(format!(
             "unknown header flags {flags:#x}"
         )));
     }
-    let have = r.remaining() as u64;
+    let payload = bytes.get(HEADER_LEN..).ok_or(PersistError::Truncated)?;
+    let have = payload.len() as u64;
     if have < len {
         return Err(PersistError::Truncated);
     }
@@ -362,22 +382,31 @@ pub fn decode(bytes: &[u8]) -> Result<SavedMap, PersistError> {
             have - len
         )));
     }
-    let payload = r.take(r.remaining())?;
     if crc32fast::hash(payload) != crc {
         return Err(PersistError::Checksum);
     }
     decode_payload(payload)
 }
 
+/// The `N` header bytes at `at` (a header cut short is a truncation).
+fn header_field<const N: usize>(bytes: &[u8], at: usize) -> Result<[u8; N], PersistError> {
+    let s = bytes.get(at..at + N).ok_or(PersistError::Truncated)?;
+    let mut a = [0u8; N];
+    a.copy_from_slice(s);
+    Ok(a)
+}
+
 /// Parses and validates a payload without the header checks (also the fuzzing entry point:
 /// a payload that passes the checksum must still never panic).
 fn decode_payload(payload: &[u8]) -> Result<SavedMap, PersistError> {
-    let mut r = Reader::new(payload);
-    let saved = read_payload(&mut r)?;
-    if r.remaining() != 0 {
+    let (saved, rest) = postcard::take_from_bytes::<SavedMap>(payload).map_err(|e| match e {
+        postcard::Error::DeserializeUnexpectedEnd => PersistError::Truncated,
+        e => PersistError::corrupt(format!("payload: {e}")),
+    })?;
+    if !rest.is_empty() {
         return Err(PersistError::corrupt(format!(
             "{} unread payload bytes",
-            r.remaining()
+            rest.len()
         )));
     }
     check_saved_camera(&saved)?;
@@ -414,295 +443,4 @@ fn check_saved_camera(s: &SavedMap) -> Result<(), PersistError> {
         )));
     }
     Ok(())
-}
-
-// Encoded sizes used to bound lengths before allocating.
-const KEYPOINT_BYTES: usize = 21;
-const POSE_BYTES: usize = 56;
-
-fn write_pose(w: &mut Writer, p: &Se3) {
-    let q = p.rotation.quaternion().coords;
-    for v in q.iter().chain(p.translation.vector.iter()) {
-        w.f64(*v);
-    }
-}
-
-fn read_pose(r: &mut Reader<'_>) -> Result<Se3, PersistError> {
-    let mut v = [0.0f64; 7];
-    for x in v.iter_mut() {
-        *x = r.f64()?;
-    }
-    // Stored bit-exact; `validate` rejects a quaternion that is not unit.
-    let q = UnitQuaternion::new_unchecked(Quaternion::new(v[3], v[0], v[1], v[2]));
-    Ok(Se3::from_parts(Translation3::new(v[4], v[5], v[6]), q))
-}
-
-fn write_keypoint(w: &mut Writer, k: &KeyPoint) {
-    w.f32(k.x);
-    w.f32(k.y);
-    w.f32(k.angle);
-    w.f32(k.response);
-    w.u8(k.octave);
-    w.f32(k.size);
-}
-
-fn read_keypoint(r: &mut Reader<'_>) -> Result<KeyPoint, PersistError> {
-    Ok(KeyPoint {
-        x: r.f32()?,
-        y: r.f32()?,
-        angle: r.f32()?,
-        response: r.f32()?,
-        octave: r.u8()?,
-        size: r.f32()?,
-    })
-}
-
-fn write_vec3(w: &mut Writer, v: &Vector3<f64>) {
-    for x in v.iter() {
-        w.f64(*x);
-    }
-}
-
-fn read_vec3(r: &mut Reader<'_>) -> Result<Vector3<f64>, PersistError> {
-    Ok(Vector3::new(r.f64()?, r.f64()?, r.f64()?))
-}
-
-fn write_payload(w: &mut Writer, s: &SavedMap) {
-    w.str(&s.producer);
-    let c = &s.camera;
-    let p = &c.pinhole;
-    w.u32(p.width);
-    w.u32(p.height);
-    for v in [p.fx, p.fy, p.cx, p.cy] {
-        w.f64(v);
-    }
-    for v in p.dist {
-        w.f64(v);
-    }
-    for v in [c.bf, c.th_depth, c.fps, c.max_depth, s.depth_factor] {
-        w.f64(v);
-    }
-    match &s.vocabulary {
-        None => w.u8(0),
-        Some(v) => {
-            w.u8(1);
-            w.u64(v.hash);
-            w.u32(v.branching);
-            w.u32(v.levels);
-            w.u32(v.words);
-        }
-    }
-    let m = &s.map;
-    w.u32(m.pyramid_levels);
-    w.f32(m.scale_factor);
-    w.u64(m.next_kf_seq);
-    w.u64(m.next_mp_seq);
-    w.opt_index(m.origin);
-    w.len(m.keyframes.len());
-    for k in &m.keyframes {
-        write_keyframe(w, k);
-    }
-    w.len(m.points.len());
-    for p in &m.points {
-        write_point(w, p);
-    }
-}
-
-fn write_keyframe(w: &mut Writer, k: &KeyFrameSnapshot) {
-    w.u64(k.seq);
-    w.u64(k.frame_id);
-    w.f64(k.timestamp);
-    write_pose(w, &k.pose);
-    // Per-keypoint arrays share one length (validated on load).
-    w.len(k.keys.len());
-    for kp in &k.keys {
-        write_keypoint(w, kp);
-    }
-    w.len(k.keys_un.len());
-    for kp in &k.keys_un {
-        write_keypoint(w, kp);
-    }
-    w.len(k.descriptors.len());
-    for d in &k.descriptors {
-        w.bytes(d);
-    }
-    for arr in [&k.depth, &k.u_right, &k.weights] {
-        w.len(arr.len());
-        for v in arr.iter() {
-            w.f32(*v);
-        }
-    }
-    w.len(k.dynamic_class.len());
-    for &b in &k.dynamic_class {
-        w.bool(b);
-    }
-    w.len(k.map_points.len());
-    for &m in &k.map_points {
-        w.opt_index(m);
-    }
-    w.len(k.bow.len());
-    for &(word, weight) in &k.bow {
-        w.u32(word);
-        w.f64(weight);
-    }
-    w.len(k.feat.len());
-    for (node, idx) in &k.feat {
-        w.u32(*node);
-        w.len(idx.len());
-        for &i in idx {
-            w.u32(i);
-        }
-    }
-    w.len(k.covisibility.len());
-    for &(o, weight) in &k.covisibility {
-        w.u32(o);
-        w.u64(weight);
-    }
-    w.opt_index(k.parent);
-    for list in [&k.children, &k.loop_edges] {
-        w.len(list.len());
-        for &i in list.iter() {
-            w.u32(i);
-        }
-    }
-}
-
-fn write_point(w: &mut Writer, p: &MapPointSnapshot) {
-    w.u64(p.seq);
-    write_vec3(w, &p.position);
-    write_vec3(w, &p.normal);
-    w.f64(p.min_distance);
-    w.f64(p.max_distance);
-    w.bytes(&p.descriptor);
-    w.len(p.observations.len());
-    for &(k, i) in &p.observations {
-        w.u32(k);
-        w.u32(i);
-    }
-    w.u64(p.num_obs);
-    w.opt_index(p.reference);
-    w.u64(p.first_kf_seq);
-    w.u32(p.visible);
-    w.u32(p.found);
-    w.f32(p.weight);
-}
-
-fn read_payload(r: &mut Reader<'_>) -> Result<SavedMap, PersistError> {
-    let producer = r.str("producer")?;
-    let (width, height) = (r.u32()?, r.u32()?);
-    let (fx, fy, cx, cy) = (r.f64()?, r.f64()?, r.f64()?, r.f64()?);
-    let mut dist = [0.0f64; 5];
-    for d in dist.iter_mut() {
-        *d = r.f64()?;
-    }
-    let (bf, th_depth, fps, max_depth, depth_factor) =
-        (r.f64()?, r.f64()?, r.f64()?, r.f64()?, r.f64()?);
-    let camera = RgbdCamera {
-        pinhole: PinholeCamera {
-            width,
-            height,
-            fx,
-            fy,
-            cx,
-            cy,
-            dist,
-        },
-        bf,
-        th_depth,
-        fps,
-        max_depth,
-    };
-    let vocabulary = match r.u8()? {
-        0 => None,
-        1 => Some(VocabularyId {
-            hash: r.u64()?,
-            branching: r.u32()?,
-            levels: r.u32()?,
-            words: r.u32()?,
-        }),
-        t => return Err(PersistError::corrupt(format!("vocabulary tag {t}"))),
-    };
-    let pyramid_levels = r.u32()?;
-    let scale_factor = r.f32()?;
-    let next_kf_seq = r.u64()?;
-    let next_mp_seq = r.u64()?;
-    let origin = r.opt_index()?;
-    // Minimum encoded sizes: a keyframe has at least its fixed fields and 14 length/index
-    // words, a point its fixed fields.
-    let keyframes = r.vec(24 + POSE_BYTES + 4 * 14, read_keyframe)?;
-    let points = r.vec(8 + 48 + 16 + 32 + 4 + 8 + 4 + 8 + 12, read_point)?;
-    Ok(SavedMap {
-        producer,
-        camera,
-        depth_factor,
-        vocabulary,
-        map: MapSnapshot {
-            pyramid_levels,
-            scale_factor,
-            next_kf_seq,
-            next_mp_seq,
-            origin,
-            keyframes,
-            points,
-        },
-    })
-}
-
-fn read_keyframe(r: &mut Reader<'_>) -> Result<KeyFrameSnapshot, PersistError> {
-    let seq = r.u64()?;
-    let frame_id = r.u64()?;
-    let timestamp = r.f64()?;
-    let pose = read_pose(r)?;
-    let keys = r.vec(KEYPOINT_BYTES, read_keypoint)?;
-    let keys_un = r.vec(KEYPOINT_BYTES, read_keypoint)?;
-    let descriptors = r.vec(32, |r| r.descriptor())?;
-    let depth = r.vec(4, |r| r.f32())?;
-    let u_right = r.vec(4, |r| r.f32())?;
-    let weights = r.vec(4, |r| r.f32())?;
-    let dynamic_class = r.vec(1, |r| r.bool("dynamic flag"))?;
-    let map_points = r.vec(4, |r| r.opt_index())?;
-    let bow = r.vec(12, |r| Ok((r.u32()?, r.f64()?)))?;
-    let feat = r.vec(8, |r| Ok((r.u32()?, r.vec(4, |r| r.u32())?)))?;
-    let covisibility = r.vec(12, |r| Ok((r.u32()?, r.u64()?)))?;
-    let parent = r.opt_index()?;
-    let children = r.vec(4, |r| r.u32())?;
-    let loop_edges = r.vec(4, |r| r.u32())?;
-    Ok(KeyFrameSnapshot {
-        seq,
-        frame_id,
-        timestamp,
-        pose,
-        keys,
-        keys_un,
-        descriptors,
-        depth,
-        u_right,
-        weights,
-        dynamic_class,
-        map_points,
-        bow,
-        feat,
-        covisibility,
-        parent,
-        children,
-        loop_edges,
-    })
-}
-
-fn read_point(r: &mut Reader<'_>) -> Result<MapPointSnapshot, PersistError> {
-    Ok(MapPointSnapshot {
-        seq: r.u64()?,
-        position: read_vec3(r)?,
-        normal: read_vec3(r)?,
-        min_distance: r.f64()?,
-        max_distance: r.f64()?,
-        descriptor: r.descriptor()?,
-        observations: r.vec(8, |r| Ok((r.u32()?, r.u32()?)))?,
-        num_obs: r.u64()?,
-        reference: r.opt_index()?,
-        first_kf_seq: r.u64()?,
-        visible: r.u32()?,
-        found: r.u32()?,
-        weight: r.f32()?,
-    })
 }

@@ -9,6 +9,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use dynapix_geometry::Se3;
 use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
 
 use super::PersistError;
 use crate::features::{Descriptor, KeyPoint};
@@ -16,7 +17,7 @@ use crate::frame::{FeatureGrid, ImageBounds, ScalePyramid};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapParams, MapPoint, MapPointId};
 
 /// One keyframe with dense indices.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KeyFrameSnapshot {
     /// Keyframe sequence number.
     pub seq: u64,
@@ -57,7 +58,7 @@ pub struct KeyFrameSnapshot {
 }
 
 /// One map point with dense indices.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MapPointSnapshot {
     /// Creation order.
     pub seq: u64,
@@ -88,7 +89,7 @@ pub struct MapPointSnapshot {
 }
 
 /// The whole map with dense indices.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MapSnapshot {
     /// Pyramid levels of the keypoints.
     pub pyramid_levels: u32,

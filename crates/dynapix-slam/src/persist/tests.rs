@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
-use crate::features::Descriptor;
+use crate::features::{Descriptor, KeyPoint};
 use crate::frame::{DepthImage, transform};
 use crate::map::KeyFrameId;
 use crate::system::{FeatureExtractor, FrameInput, FrameResult, System, SystemParams};
@@ -621,4 +621,35 @@ fn localisation_follows_a_different_path_through_the_mapped_scene() {
         assert!(!r.new_keyframe);
     }
     assert_eq!(system.map().num_keyframes(), built().saved.num_keyframes());
+}
+
+#[test]
+fn the_payload_is_the_postcard_encoding_of_the_saved_map() {
+    let b = built();
+    let payload = &b.bytes[HEADER_LEN..];
+    let direct: SavedMap = postcard::from_bytes(payload).expect("postcard");
+    assert_eq!(direct, b.saved);
+    assert_eq!(postcard::to_allocvec(&b.saved).expect("postcard"), payload);
+}
+
+#[test]
+fn a_huge_claimed_length_is_a_truncation() {
+    // The producer string claims 2^32 - 1 bytes: postcard must fail on the missing bytes
+    // instead of allocating them.
+    assert!(matches!(
+        decode_payload(&[0xff, 0xff, 0xff, 0xff, 0x0f, b'd']),
+        Err(PersistError::Truncated)
+    ));
+    // A keyframe list claiming u64::MAX entries right after a valid map header part.
+    let mut s = built().saved.clone();
+    s.map.keyframes.clear();
+    s.map.points.clear();
+    s.map.origin = None;
+    let mut p = postcard::to_allocvec(&s).expect("postcard");
+    // The two trailing zero bytes are the empty keyframe and point counts.
+    assert_eq!(p[p.len() - 2..], [0, 0]);
+    p.truncate(p.len() - 2);
+    p.extend_from_slice(&[0xff; 9]);
+    p.push(0x01);
+    assert!(matches!(decode_payload(&p), Err(PersistError::Truncated)));
 }
