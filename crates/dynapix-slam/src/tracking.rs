@@ -203,15 +203,7 @@ impl Tracker {
         mut frame: Frame,
         vocab: Option<&Vocabulary>,
     ) -> TrackOutcome {
-        let mut out = TrackOutcome {
-            state: self.state,
-            pose: None,
-            reference: None,
-            new_keyframe: None,
-            inliers: 0,
-            reset_requested: false,
-            relocalised: false,
-        };
+        let mut out = self.empty_outcome();
         if self.state == TrackingState::NotInitialized {
             if frame.len() > self.params.init_min_features
                 && frame.depth.iter().filter(|&&d| d > 0.0).count() > 0
@@ -319,6 +311,19 @@ impl Tracker {
             }
         }
         ok
+    }
+
+    /// An outcome with the current state and nothing tracked yet.
+    fn empty_outcome(&self) -> TrackOutcome {
+        TrackOutcome {
+            state: self.state,
+            pose: None,
+            reference: None,
+            new_keyframe: None,
+            inliers: 0,
+            reset_requested: false,
+            relocalised: false,
+        }
     }
 
     fn record_last(&mut self, map: &Map, frame: Frame) {

@@ -19,14 +19,12 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Parser;
 use dynapix_io::images::{read_mask, read_prob_png_raw, read_rgbd};
-use dynapix_io::trajectory::write_status;
 use dynapix_io::tum::resolve_path;
 use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::dynapix::{DynaPixParams, ProbUpdate, Weighting};
 use dynapix_slam::frame::WeightImage;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
-use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
 use image::{GrayImage, Luma};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -320,11 +318,7 @@ fn slam_pass(
             weights: w.as_ref(),
             masks: m.as_ref(),
         });
-        let st = match res.state {
-            TrackingState::Ok => FrameStatus::Tracked,
-            TrackingState::Lost => FrameStatus::Lost,
-            TrackingState::NotInitialized => FrameStatus::NotInitialized,
-        };
+        let st = slam::frame_status(res.state);
         status.push(StampedStatus { t, status: st });
         pb.set_message(format!(
             "{st} kf {} mp {}",
@@ -338,24 +332,7 @@ fn slam_pass(
         .join()
         .map_err(|_| anyhow::anyhow!("image loader thread panicked"))?;
     let seconds = t0.elapsed().as_secs_f64();
-    let traj = Trajectory::new(
-        system
-            .trajectory()
-            .into_iter()
-            .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
-            .collect(),
-    );
-    traj.write_tum(out.join("trajectory.txt"))?;
-    write_status(out.join("status.txt"), &status)?;
-    let kfs = Trajectory::new(
-        system
-            .keyframe_trajectory()
-            .into_iter()
-            .map(|(t, p)| StampedPose::new(t, p))
-            .collect(),
-    );
-    kfs.write_tum(out.join("keyframes.txt"))?;
-    slam::write_loops(&out.join("loops.txt"), system.loop_events())?;
+    slam::write_outputs(&system, &status, out)?;
     let tracked = status
         .iter()
         .filter(|s| s.status == FrameStatus::Tracked)

@@ -360,11 +360,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             weights: None,
             masks: None,
         });
-        let st = match res.state {
-            TrackingState::Ok => FrameStatus::Tracked,
-            TrackingState::Lost => FrameStatus::Lost,
-            TrackingState::NotInitialized => FrameStatus::NotInitialized,
-        };
+        let st = frame_status(res.state);
         status.push(StampedStatus { t, status: st });
         let tr = (res.times.extract + res.times.track) * 1e3;
         t_track.push(tr);
@@ -392,25 +388,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .join()
         .map_err(|_| anyhow::anyhow!("image loader thread panicked"))?;
 
-    let traj = Trajectory::new(
-        system
-            .trajectory()
-            .into_iter()
-            .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
-            .collect(),
-    );
-    traj.write_tum(args.out.join("trajectory.txt"))?;
-    write_status(args.out.join("status.txt"), &status)?;
-    let kfs = Trajectory::new(
-        system
-            .keyframe_trajectory()
-            .into_iter()
-            .map(|(t, p)| StampedPose::new(t, p))
-            .collect(),
-    );
-    kfs.write_tum(args.out.join("keyframes.txt"))?;
+    write_outputs(&system, &status, &args.out)?;
     dynapix_io::write_atomic(args.out.join("timing.csv"), timing.as_bytes())?;
-    write_loops(&args.out.join("loops.txt"), system.loop_events())?;
     let tracked = status
         .iter()
         .filter(|s| s.status == FrameStatus::Tracked)
@@ -437,6 +416,42 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         save_map(path, &system, settings.depth_map_factor)?;
     }
     Ok(())
+}
+
+/// The status-file value of a tracking state.
+pub(crate) fn frame_status(state: TrackingState) -> FrameStatus {
+    match state {
+        TrackingState::Ok => FrameStatus::Tracked,
+        TrackingState::Lost => FrameStatus::Lost,
+        TrackingState::NotInitialized => FrameStatus::NotInitialized,
+    }
+}
+
+/// Writes what every SLAM run leaves in `out`: `trajectory.txt` (TUM, the current estimate of
+/// every tracked frame), `status.txt`, `keyframes.txt` and `loops.txt`.
+pub(crate) fn write_outputs<E: FeatureExtractor>(
+    system: &System<E>,
+    status: &[StampedStatus],
+    out: &Path,
+) -> anyhow::Result<()> {
+    let traj = Trajectory::new(
+        system
+            .trajectory()
+            .into_iter()
+            .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
+            .collect(),
+    );
+    traj.write_tum(out.join("trajectory.txt"))?;
+    write_status(out.join("status.txt"), status)?;
+    let kfs = Trajectory::new(
+        system
+            .keyframe_trajectory()
+            .into_iter()
+            .map(|(t, p)| StampedPose::new(t, p))
+            .collect(),
+    );
+    kfs.write_tum(out.join("keyframes.txt"))?;
+    write_loops(&out.join("loops.txt"), system.loop_events())
 }
 
 /// Writes the closed loops, one per line: the two keyframes' timestamps, the matches and what

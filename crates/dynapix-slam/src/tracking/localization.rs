@@ -26,15 +26,7 @@ impl Tracker {
         mut frame: Frame,
         vocab: Option<&Vocabulary>,
     ) -> TrackOutcome {
-        let mut out = TrackOutcome {
-            state: self.state,
-            pose: None,
-            reference: None,
-            new_keyframe: None,
-            inliers: 0,
-            reset_requested: false,
-            relocalised: false,
-        };
+        let mut out = self.empty_outcome();
         let ok = self.track_against_map(map, &mut frame, vocab, &mut out);
         if ok {
             for i in 0..frame.len() {
