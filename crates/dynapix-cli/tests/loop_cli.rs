@@ -44,7 +44,7 @@ fn synth(preset: &str, frames: usize, dir: &Path) {
 
 fn slam(seq: &Path, out: &Path, extra: &[&str]) {
     let mut a: Vec<&std::ffi::OsStr> = vec!["slam".as_ref(), seq.as_os_str()];
-    a.extend(extra.iter().map(|s| std::ffi::OsStr::new(s)));
+    a.extend(extra.iter().map(std::ffi::OsStr::new));
     a.extend(["--out".as_ref(), out.as_os_str()]);
     ok(&dynapix(&a));
 }

@@ -58,6 +58,12 @@ pub const HEADER_LEN: usize = 28;
 /// Errors of map loading (and of the caller's file access, for one error type end to end).
 #[derive(Debug, thiserror::Error)]
 pub enum PersistError {
+    /// The map could not be serialised (not expected for a valid map).
+    #[error("cannot encode the map: {reason}")]
+    Encode {
+        /// The serialiser's message.
+        reason: String,
+    },
     /// Reading or writing the map file failed (the I/O error is the source).
     #[error("cannot access map file {path}")]
     Io {
@@ -209,14 +215,17 @@ impl SavedMap {
     }
 
     /// Serialises to the map file format (header + payload).
-    pub fn to_bytes(&self) -> Vec<u8> {
+    pub fn to_bytes(&self) -> Result<Vec<u8>, PersistError> {
         // The payload is serialised in place behind a zeroed header, which is then filled in
         // (saves copying a multi-megabyte payload).
         let mut out = vec![0u8; HEADER_LEN];
         out.reserve(self.payload_size_hint());
-        // Cannot fail: every payload type is a plain struct, tuple, fixed array, `Option` or
-        // `Vec` (known lengths), and the output is a growable vector.
-        let mut out = postcard::to_extend(self, out).expect("postcard serialisation of a map");
+        // Not expected to fail (every payload type is a plain struct, tuple, fixed array,
+        // `Option` or `Vec` of known length, written into a growable vector), but a serialiser
+        // error is reported, not turned into a panic.
+        let mut out = postcard::to_extend(self, out).map_err(|e| PersistError::Encode {
+            reason: e.to_string(),
+        })?;
         let payload = out.get(HEADER_LEN..).unwrap_or_default();
         let len = (payload.len() as u64).to_le_bytes();
         let crc = crc32fast::hash(payload).to_le_bytes();
@@ -229,7 +238,7 @@ impl SavedMap {
         ]
         .concat();
         out[..HEADER_LEN].copy_from_slice(&header);
-        out
+        Ok(out)
     }
 
     /// Rough payload size (per-keypoint and per-point bytes of a typical map), so encoding
@@ -339,7 +348,7 @@ pub fn encode(
     camera: &RgbdCamera,
     depth_factor: f64,
     vocab: Option<&Vocabulary>,
-) -> Vec<u8> {
+) -> Result<Vec<u8>, PersistError> {
     SavedMap::from_map(map, camera, depth_factor, vocab).to_bytes()
 }
 

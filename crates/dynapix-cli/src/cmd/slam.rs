@@ -277,7 +277,8 @@ fn save_map<E: FeatureExtractor>(
         system.camera(),
         depth_factor,
         system.vocabulary(),
-    );
+    )
+    .with_context(|| format!("cannot save map {}", path.display()))?;
     let t1 = Instant::now();
     dynapix_io::write_atomic(path, &bytes)
         .with_context(|| format!("cannot save map {}", path.display()))?;

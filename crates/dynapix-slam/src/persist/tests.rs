@@ -203,7 +203,7 @@ fn built() -> &'static Built {
         .with_vocabulary(vocab().clone());
         let poses = run(&mut system);
         let saved = SavedMap::from_map(system.map(), &camera(), DEPTH_FACTOR, Some(vocab()));
-        let bytes = encode(system.map(), &camera(), DEPTH_FACTOR, Some(vocab()));
+        let bytes = encode(system.map(), &camera(), DEPTH_FACTOR, Some(vocab())).expect("encode");
         Built {
             saved,
             bytes,
@@ -238,7 +238,7 @@ fn round_trip_is_lossless_and_byte_identical() {
     let decoded = decode(&b.bytes).expect("decode");
     assert_eq!(decoded, b.saved, "decoded map differs from the saved one");
     let map = decoded.clone().into_map(MapParams::default());
-    let again = encode(&map, &camera(), DEPTH_FACTOR, Some(vocab()));
+    let again = encode(&map, &camera(), DEPTH_FACTOR, Some(vocab())).expect("encode");
     assert!(again == b.bytes, "re-encoding changed the bytes");
     assert_eq!(map.num_keyframes(), b.saved.num_keyframes());
     assert_eq!(map.num_points(), b.saved.num_points());
@@ -257,7 +257,7 @@ fn reloaded_keyframes_match_the_originals_including_grids_and_links() {
     .with_vocabulary(vocab().clone());
     run(&mut system);
     let orig = system.map();
-    let loaded = decode(&encode(orig, &camera(), DEPTH_FACTOR, Some(vocab())))
+    let loaded = decode(&encode(orig, &camera(), DEPTH_FACTOR, Some(vocab())).expect("encode"))
         .expect("decode")
         .into_map(MapParams::default());
     let a = orig.keyframes_sorted();
@@ -302,7 +302,7 @@ fn loop_edges_survive_a_round_trip() {
     let n = saved.map.keyframes.len() as u32;
     saved.map.keyframes[0].loop_edges = vec![n - 1];
     saved.map.keyframes[(n - 1) as usize].loop_edges = vec![0];
-    let decoded = decode(&saved.to_bytes()).expect("decode");
+    let decoded = decode(&saved.to_bytes().expect("encode")).expect("decode");
     assert_eq!(decoded, saved);
     let map = decoded.into_map(MapParams::default());
     let kfs = map.keyframes_sorted();
@@ -489,7 +489,7 @@ fn structural_corruption_is_reported_as_corrupt() {
     for (what, edit) in edits {
         let mut s = base.clone();
         edit(&mut s, np, nk);
-        match decode(&s.to_bytes()) {
+        match decode(&s.to_bytes().expect("encode")) {
             Err(PersistError::Corrupt { what: msg }) => {
                 assert!(msg.contains(what), "{what}: got {msg}")
             }
@@ -587,17 +587,17 @@ fn a_missing_point_reference_falls_back_to_the_first_observer() {
         .expect("a point seen twice");
     let first = saved.map.points[i].observations[0].0;
     saved.map.points[i].reference = None;
-    let map = decode(&saved.to_bytes())
+    let map = decode(&saved.to_bytes().expect("encode"))
         .expect("decode")
         .into_map(MapParams::default());
     let again = SavedMap::from_map(&map, &camera(), DEPTH_FACTOR, Some(vocab()));
     assert_eq!(again.map.points[i].reference, Some(first));
     // From then on the file is stable.
-    let bytes = again.to_bytes();
+    let bytes = again.to_bytes().expect("encode");
     let map2 = decode(&bytes)
         .expect("decode")
         .into_map(MapParams::default());
-    assert!(encode(&map2, &camera(), DEPTH_FACTOR, Some(vocab())) == bytes);
+    assert!(encode(&map2, &camera(), DEPTH_FACTOR, Some(vocab())).expect("encode") == bytes);
 }
 
 #[test]
