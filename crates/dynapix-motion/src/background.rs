@@ -252,6 +252,22 @@ mod tests {
     use crate::metrics::psnr_masked;
     use crate::testutil::{Scene, small_camera};
 
+    /// Every frame but `c` as a source, posed relative to frame `c` (`frames`: image, depth,
+    /// `T_wc`).
+    fn neighbour_sources(frames: &[(RgbImage, FloatImage, Se3)], c: usize) -> Vec<Source<'_>> {
+        let t_cw = frames[c].2.inverse();
+        frames
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| k != c)
+            .map(|(_, f)| Source {
+                rgb: &f.0,
+                depth: &f.1,
+                t_ts: t_cw * f.2,
+            })
+            .collect()
+    }
+
     #[test]
     fn walking_mover_vanishes_from_the_median() {
         let cam = small_camera();
@@ -266,16 +282,7 @@ mod tests {
             .collect();
         let c = 5;
         let t_wc = frames[c].2;
-        let sources: Vec<Source> = frames
-            .iter()
-            .enumerate()
-            .filter(|&(k, _)| k != c)
-            .map(|(_, f)| Source {
-                rgb: &f.0,
-                depth: &f.1,
-                t_ts: t_wc.inverse() * f.2,
-            })
-            .collect();
+        let sources = neighbour_sources(&frames, c);
         let bg = reconstruct_background(
             &frames[c].0,
             &frames[c].1,
@@ -320,16 +327,7 @@ mod tests {
             .collect();
         let c = 5;
         let t_wc = frames[c].2;
-        let sources: Vec<Source> = frames
-            .iter()
-            .enumerate()
-            .filter(|&(k, _)| k != c)
-            .map(|(_, f)| Source {
-                rgb: &f.0,
-                depth: &f.1,
-                t_ts: t_wc.inverse() * f.2,
-            })
-            .collect();
+        let sources = neighbour_sources(&frames, c);
         let (truth, _) = scene.render(&cam, &t_wc, false, 0.0);
         let mover: Vec<bool> = frames[c].1.iter().map(|z| (z - 1.5).abs() < 1e-3).collect();
         let run = |statistic: Statistic| {
