@@ -5,6 +5,7 @@
 
 use crate::ate::AteResult;
 use crate::error::{EvalError, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 use std::path::{Path, PathBuf};
@@ -101,6 +102,14 @@ fn draw_top_view<DB: DrawingBackend>(
         .map_err(|e| e.to_string())?
         .label("estimate (aligned)")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], est_color));
+    draw_legend(&mut chart)?;
+    root.present().map_err(|e| e.to_string())
+}
+
+/// The legend box both plots share (upper right, translucent white, black border).
+fn draw_legend<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+) -> std::result::Result<(), String> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -108,8 +117,7 @@ fn draw_top_view<DB: DrawingBackend>(
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()
-        .map_err(|e| e.to_string())?;
-    root.present().map_err(|e| e.to_string())
+        .map_err(|e| e.to_string())
 }
 
 fn draw_error_over_time<DB: DrawingBackend>(
@@ -156,14 +164,7 @@ fn draw_error_over_time<DB: DrawingBackend>(
         .map_err(|e| e.to_string())?
         .label("RMSE")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], rmse_color));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FAMILY, 14))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| e.to_string())?;
+    draw_legend(&mut chart)?;
     root.present().map_err(|e| e.to_string())
 }
 
