@@ -196,6 +196,18 @@ impl OrbExtractor {
     /// Extracts keypoints (level-0 coordinates, grouped by level) and their descriptors.
     /// Images too small for any level give no features.
     pub fn extract(&self, img: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        self.extract_where(img, None)
+    }
+
+    /// Extracts keypoints as [`OrbExtractor::extract`], but only where `keep` allows: FAST
+    /// corners at level-0 pixels where `keep` is false are dropped before the octree spends
+    /// the level's budget, so the whole feature budget goes to the allowed part of the image
+    /// (DynaPix: the static scene instead of the people in front of it).
+    pub fn extract_where(
+        &self,
+        img: &GrayImage,
+        keep: Option<&KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         let (w, h) = (img.width() as usize, img.height() as usize);
         let base = Plane {
             w,
@@ -206,7 +218,7 @@ impl OrbExtractor {
         let per_level: Vec<(Vec<KeyPoint>, Vec<Descriptor>)> = pyramid
             .par_iter()
             .enumerate()
-            .map(|(level, plane)| self.process_level(level, plane))
+            .map(|(level, plane)| self.process_level(level, plane, keep))
             .collect();
         let n: usize = per_level.iter().map(|(k, _)| k.len()).sum();
         let mut kps = Vec::with_capacity(n);
@@ -242,7 +254,13 @@ impl OrbExtractor {
     }
 
     /// Detection, distribution, orientation and description on one pyramid level.
-    fn process_level(&self, level: usize, img: &Plane) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+    fn process_level(
+        &self,
+        level: usize,
+        img: &Plane,
+        keep: Option<&KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        let scale = self.scale.get(level).copied().unwrap_or(1.0);
         let min_b = EDGE_THRESHOLD - 3;
         let max_bx = img.w as i32 - EDGE_THRESHOLD + 3;
         let max_by = img.h as i32 - EDGE_THRESHOLD + 3;
@@ -287,9 +305,18 @@ impl OrbExtractor {
                     }
                 }
                 for c in &cell {
+                    let x = c.x as i32 + j * w_cell;
+                    let y = c.y as i32 + i * h_cell;
+                    if let Some(k) = keep {
+                        let lx = ((x + min_b) as f32 * scale) as u32;
+                        let ly = ((y + min_b) as f32 * scale) as u32;
+                        if !k.allows(lx, ly) {
+                            continue;
+                        }
+                    }
                     cands.push(octree::Cand {
-                        x: (c.x as i32 + j * w_cell) as f32,
-                        y: (c.y as i32 + i * h_cell) as f32,
+                        x: x as f32,
+                        y: y as f32,
                         response: c.score as f32,
                     });
                 }
@@ -299,7 +326,6 @@ impl OrbExtractor {
         let budget = self.per_level.get(level).copied().unwrap_or(0);
         let kept = octree::distribute(&cands, min_b, max_bx, min_b, max_by, budget);
         let blurred = imgproc::gaussian_blur(img, BLUR_RADIUS, BLUR_SIGMA);
-        let scale = self.scale.get(level).copied().unwrap_or(1.0);
         // Upstream stores the patch size as an int.
         let size = (PATCH_SIZE * scale).trunc();
         let mut kps = Vec::with_capacity(kept.len());
@@ -341,6 +367,42 @@ impl OrbExtractor {
             m01 += v * v_sum;
         }
         imgproc::fast_atan2_deg(m01 as f32, m10 as f32)
+    }
+}
+
+/// Where keypoints may be detected: a level-0 boolean image (row-major), true = allowed.
+/// Pixels outside the image are allowed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeepMask {
+    width: u32,
+    height: u32,
+    allowed: Vec<bool>,
+}
+
+impl KeepMask {
+    /// A mask from a row-major boolean image; `None` when the length is not `width·height`.
+    pub fn new(width: u32, height: u32, allowed: Vec<bool>) -> Option<Self> {
+        (allowed.len() == width as usize * height as usize).then_some(Self {
+            width,
+            height,
+            allowed,
+        })
+    }
+
+    /// Whether a keypoint may be detected at level-0 pixel (x, y).
+    pub fn allows(&self, x: u32, y: u32) -> bool {
+        if x >= self.width || y >= self.height {
+            return true;
+        }
+        self.allowed[(y * self.width + x) as usize]
+    }
+
+    /// Fraction of allowed pixels.
+    pub fn allowed_fraction(&self) -> f64 {
+        if self.allowed.is_empty() {
+            return 1.0;
+        }
+        self.allowed.iter().filter(|&&a| a).count() as f64 / self.allowed.len() as f64
     }
 }
 

@@ -21,6 +21,16 @@ use crate::vocab::Vocabulary;
 pub trait FeatureExtractor {
     /// Extracts features.
     fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>);
+    /// Extracts features only where `keep` allows, spending the whole budget there. The
+    /// default ignores the mask.
+    fn extract_where(
+        &mut self,
+        image: &GrayImage,
+        keep: Option<&crate::orb::KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        let _ = keep;
+        self.extract(image)
+    }
     /// The pyramid the keypoint octaves refer to.
     fn pyramid(&self) -> ScalePyramid;
 }
@@ -36,6 +46,10 @@ pub struct SystemParams {
     pub map: MapParams,
     /// Loop closing.
     pub loop_closing: LoopClosingParams,
+    /// DynaPix feature budget: with a weight map, keypoints are detected only where the static
+    /// weight w = 1 − P is at least this value, so the extractor spends its whole budget on
+    /// the static scene (None: everywhere, as ORB-SLAM2).
+    pub static_features_min_weight: Option<f32>,
 }
 
 /// One input frame.
@@ -130,6 +144,8 @@ pub struct System<E> {
     vocab: Option<Vocabulary>,
     /// Localisation mode: track a fixed map, never map (see [`System::from_map`]).
     localization: bool,
+    /// See [`SystemParams::static_features_min_weight`].
+    static_features_min_weight: Option<f32>,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -148,6 +164,7 @@ impl<E: FeatureExtractor> System<E> {
             next_index: 0,
             vocab: None,
             localization: false,
+            static_features_min_weight: params.static_features_min_weight,
         }
     }
 
@@ -217,7 +234,20 @@ impl<E: FeatureExtractor> System<E> {
         let index = self.next_index;
         self.next_index += 1;
         let t0 = Instant::now();
-        let (keys, descs) = self.extractor.extract(input.gray);
+        let keep = match (self.static_features_min_weight, input.weights) {
+            (Some(th), Some(w)) if w.dimensions() == input.gray.dimensions() => {
+                crate::orb::KeepMask::new(
+                    w.width(),
+                    w.height(),
+                    w.as_raw().iter().map(|&v| !(v < th)).collect(),
+                )
+            }
+            _ => None,
+        };
+        let (keys, descs) = match &keep {
+            Some(k) => self.extractor.extract_where(input.gray, Some(k)),
+            None => self.extractor.extract(input.gray),
+        };
         let t1 = Instant::now();
         let mut frame = Frame::new(
             index,

@@ -85,6 +85,12 @@ pub struct TrackingParams {
     pub matcher: MatcherParams,
     /// Relocalisation.
     pub reloc: RelocParams,
+    /// Predicted local-map tracking: when the motion model, the reference keyframe (and, once
+    /// lost, relocalisation) fail, the frame is tracked against the last local map from the
+    /// constant-velocity prediction, for at most this many frames after the last tracked one
+    /// (0 = off, as ORB-SLAM2). Among movers the few static matches of the last frame can be
+    /// too few for the motion model while the local map still holds enough static points.
+    pub predicted_frames: u64,
 }
 
 impl Default for TrackingParams {
@@ -116,6 +122,7 @@ impl Default for TrackingParams {
             pose: PoseOnlyParams::default(),
             matcher: MatcherParams::default(),
             reloc: RelocParams::default(),
+            predicted_frames: 0,
         }
     }
 }
@@ -156,6 +163,10 @@ pub struct Tracker {
     local_points: Vec<MapPointId>,
     inliers: usize,
     last_known_pose: Option<Se3>,
+    /// `(velocity, pose, frame id)` of the last tracked frame, for predicted tracking.
+    coast: Option<(Se3, Se3, u64)>,
+    /// The current frame is tracked from a prediction (wider local-map search).
+    predicted: bool,
 }
 
 impl Tracker {
@@ -175,6 +186,8 @@ impl Tracker {
             local_points: Vec::new(),
             inliers: 0,
             last_known_pose: None,
+            coast: None,
+            predicted: false,
         }
     }
 
@@ -272,6 +285,7 @@ impl Tracker {
         out: &mut TrackOutcome,
     ) -> bool {
         self.refresh_last_frame(map);
+        self.predicted = false;
         let mut ok;
         if self.state == TrackingState::Ok {
             let just_relocalised = frame.id < self.last_reloc_frame + 2;
@@ -289,6 +303,9 @@ impl Tracker {
             }
             ok = map.num_keyframes() > 0 && self.relocalize(map, frame);
             out.relocalised = ok;
+        }
+        if !ok {
+            ok = self.predict(frame);
         }
         frame.reference = self.reference_kf;
         if ok {
@@ -309,8 +326,39 @@ impl Tracker {
             } else {
                 self.velocity = None;
             }
+            if let Some(cur) = frame.pose {
+                let v = match (self.velocity, self.last_frame.as_ref()) {
+                    // Per-frame velocity: after a gap the last tracked frame is further back.
+                    (Some(v), Some(l)) if frame.id == l.id + 1 => v,
+                    _ => self.coast.map(|c| c.0).unwrap_or_else(Se3::identity),
+                };
+                self.coast = Some((v, cur, frame.id));
+            }
         }
         ok
+    }
+
+    /// Predicted local-map tracking (see [`TrackingParams::predicted_frames`]): the pose is the
+    /// constant-velocity extrapolation from the last tracked frame, matches are left to the
+    /// local-map search.
+    fn predict(&mut self, frame: &mut Frame) -> bool {
+        let Some((v, last, id)) = self.coast else {
+            return false;
+        };
+        let gap = frame.id.saturating_sub(id);
+        if gap == 0 || gap > self.params.predicted_frames || self.local_kfs.is_empty() {
+            return false;
+        }
+        let mut pose = last;
+        for _ in 0..gap {
+            pose = normalized(&(v * pose));
+        }
+        frame.pose = Some(pose);
+        frame.map_points.iter_mut().for_each(|m| *m = None);
+        frame.outlier.iter_mut().for_each(|o| *o = false);
+        self.predicted = true;
+        tracing::debug!(frame = frame.id, gap, "predicted local-map tracking");
+        true
     }
 
     /// An outcome with the current state and nothing tracked yet.
@@ -647,7 +695,7 @@ impl Tracker {
         if cands.is_empty() {
             return;
         }
-        let th = if frame.id < self.last_reloc_frame + 2 {
+        let th = if frame.id < self.last_reloc_frame + 2 || self.predicted {
             self.params.local_th_reloc
         } else {
             self.params.local_th
@@ -703,6 +751,10 @@ impl Tracker {
             && inliers < self.params.local_min_inliers_reloc
         {
             return false;
+        }
+        if self.predicted {
+            // A predicted pose needs only as many inliers as a motion-model pose.
+            return inliers >= self.params.min_inliers_frame;
         }
         inliers >= self.params.local_min_inliers
     }

@@ -138,6 +138,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 allow_missing_prob: false,
                 no_loop_closing: false,
                 quiet: false,
+                static_features: None,
+                predicted_frames: 0,
             };
             if method == Method::Dynapix && !args.oracle_poses {
                 // The ORB-SLAM2 run is DynaPix's first pass (same system, same seed).

@@ -86,6 +86,8 @@ fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run
         allow_missing_prob: false,
         no_loop_closing: false,
         quiet: true,
+        static_features: None,
+        predicted_frames: 0,
     }
 }
 

@@ -162,6 +162,14 @@ pub struct Args {
     /// Hide progress bars.
     #[arg(long)]
     pub quiet: bool,
+    /// Detect keypoints only where the static weight w = 1 − P is at least this value, so
+    /// the whole feature budget goes to the static scene (default: everywhere).
+    #[arg(long)]
+    pub static_features: Option<f32>,
+    /// Track against the local map from the constant-velocity prediction for at most this
+    /// many frames when the motion model and the reference keyframe fail (0: off).
+    #[arg(long, default_value_t = 0)]
+    pub predicted_frames: u64,
 }
 
 #[derive(Parser)]
@@ -306,6 +314,7 @@ fn slam_pass(
     let mut status = Vec::with_capacity(frames.len());
     let t0 = Instant::now();
     let mut missing = 0usize;
+    let mut frame_rows = String::from("timestamp,status,keypoints,inliers,keyframe,map_points\n");
     for (t, rd, w, m, miss) in rx {
         missing += usize::from(miss);
         let (rgb, depth) = rd?;
@@ -320,6 +329,13 @@ fn slam_pass(
         });
         let st = slam::frame_status(res.state);
         status.push(StampedStatus { t, status: st });
+        frame_rows.push_str(&format!(
+            "{t:.6},{st},{},{},{},{}\n",
+            res.num_keypoints,
+            res.inliers,
+            u8::from(res.new_keyframe),
+            system.map().num_points()
+        ));
         pb.set_message(format!(
             "{st} kf {} mp {}",
             system.map().num_keyframes(),
@@ -333,6 +349,7 @@ fn slam_pass(
         .map_err(|_| anyhow::anyhow!("image loader thread panicked"))?;
     let seconds = t0.elapsed().as_secs_f64();
     slam::write_outputs(&system, &status, out)?;
+    dynapix_io::atomic::write_atomic(out.join("frames.csv"), frame_rows.as_bytes())?;
     let tracked = status
         .iter()
         .filter(|s| s.status == FrameStatus::Tracked)
@@ -624,6 +641,10 @@ pub fn execute(args: &Args) -> anyhow::Result<RunOutcome> {
     };
     params.loop_closing.enabled = !args.no_loop_closing;
     record["loop_closing"] = json!(!args.no_loop_closing);
+    params.static_features_min_weight = args.static_features;
+    params.tracking.predicted_frames = args.predicted_frames;
+    record["predicted_frames"] = json!(args.predicted_frames);
+    record["static_features_min_weight"] = json!(args.static_features);
     let mask_dir = if args.method == Method::DynapixPlus {
         let d = args
             .masks

@@ -197,6 +197,13 @@ impl FeatureExtractor for Orb {
     fn extract(&mut self, image: &image::GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         self.0.extract(image)
     }
+    fn extract_where(
+        &mut self,
+        image: &image::GrayImage,
+        keep: Option<&dynapix_slam::orb::KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        self.0.extract_where(image, keep)
+    }
     fn pyramid(&self) -> ScalePyramid {
         ScalePyramid::new(self.0.nlevels(), self.0.scale_factor())
     }
