@@ -109,10 +109,12 @@ fn file_name(p: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// A run's result with the motionless floor on its pairs.
-#[derive(Debug, Clone)]
+/// A run's result with the motionless floor on its pairs. Serialises as the [`RunResult`]
+/// fields plus `motionless_floor_m` (what `eval.json` of a run should hold).
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct RunEvaluation {
     /// The run's figures.
+    #[serde(flatten)]
     pub result: RunResult,
     /// ATE RMSE of a motionless camera on the run's pairs, metres (`None` when the ATE could
     /// not be computed).
@@ -247,6 +249,41 @@ pub fn write_table(dir: &Path, table: &PaperTable) -> Result<Vec<PathBuf>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_reports_its_floor_and_serialises_flat() {
+        let dir = tempfile::tempdir().expect("tmp");
+        // Ground truth along x at 1 m/s for 2 s; a motionless estimate at 10 Hz.
+        let gt: Vec<(f64, Se3)> = (0..=200)
+            .map(|k| {
+                let t = k as f64 * 0.01;
+                (t, Se3::translation(t, 0.0, 0.0))
+            })
+            .collect();
+        let est = dir.path().join("still.txt");
+        let lines: String = (0..=20)
+            .map(|k| format!("{:.6} 0 0 0 0 0 0 1\n", k as f64 * 0.1))
+            .collect();
+        std::fs::write(&est, lines).expect("write");
+        let r = evaluate_run(&gt, &est, None, &EvalParams::default());
+        // Positions 0, 0.1, …, 2.0: RMS distance from 1.0 is √(Σ(0.1k − 1)²/21) = √0.3667.
+        let floor = r.motionless_floor_m.expect("floor");
+        assert!(
+            (floor - (0.11f64 * 10.0 / 3.0).sqrt()).abs() < 1e-9,
+            "{floor}"
+        );
+        assert!((r.result.ate_rmse_m.expect("ate") - floor).abs() < 1e-9);
+        let v = serde_json::to_value(&r).expect("json");
+        assert_eq!(v["pairs"], 21);
+        assert!(v["motionless_floor_m"].as_f64().is_some() && v.get("result").is_none());
+        let missing = evaluate_run(
+            &gt,
+            &dir.path().join("none.txt"),
+            None,
+            &EvalParams::default(),
+        );
+        assert!(missing.motionless_floor_m.is_none() && missing.result.error.is_some());
+    }
 
     #[test]
     fn reference_stamps_from_association_and_bad_line() {

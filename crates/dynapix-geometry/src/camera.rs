@@ -264,7 +264,9 @@ impl PixelRays {
             return None;
         }
         let x = Vector2::new(p.x / p.z, p.y / p.z);
-        if !(x.norm_squared() <= self.max_r2) {
+        // NaN radii fail the comparison and are refused as well.
+        let inside = x.norm_squared() <= self.max_r2;
+        if !inside {
             return None;
         }
         let d = self.camera.distort_normalized(&x);
