@@ -238,8 +238,8 @@ impl PaperTable {
         self.floors_m.iter().any(Option::is_some)
     }
 
-    /// Markdown table: one row per sequence, a "motionless floor [m]" column when floors are
-    /// known, per method an "ATE [m]" column (and "TR" when known), then the Average and ATR
+    /// Markdown table: one row per sequence, a `motionless floor [m]` column when floors are
+    /// known, per method an `ATE [m]` column (and `TR` when known), then the Average and ATR
     /// rows.
     pub fn to_markdown(&self) -> String {
         let tr = self.has_tracking();
