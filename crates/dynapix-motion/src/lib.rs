@@ -4,7 +4,8 @@
 //! The probability of a pixel being on something that currently moves is `P = D ⊙ M`:
 //! - [`movable`]: the movable term D from the difference between the frame and its static
 //!   background (spec §1.3);
-//! - [`splat`]: forward-splatting view synthesis of a neighbour frame into the current view
+//! - [`splat`]: forward-splatting view synthesis of a neighbour frame into the current view,
+//!   through the lens distortion of the camera when it has one
 //!   (spec §1.5);
 //! - [`moving`]: the moving term M from static/dynamic flow differencing (spec §1.7);
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
@@ -38,7 +39,7 @@ pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{
     MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
 };
-pub use splat::{SplatParams, Warped, splat};
+pub use splat::{SplatParams, Warped, pixel_rays, splat};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;

@@ -44,6 +44,8 @@ pub enum CameraPreset {
     Tum3,
     /// GRADE (`GRADE.yaml`, depth in mm, 3000 features).
     Grade,
+    /// Bonn RGB-D Dynamic (the dataset's Kinect calibration, distorted).
+    Bonn,
 }
 
 /// Arguments of `dynapix slam`.
@@ -54,7 +56,8 @@ pub struct Args {
     /// SLAM mode.
     #[arg(long, value_enum, default_value = "orbslam2")]
     pub mode: Mode,
-    /// Camera preset (default: the folder's camera.yaml, or tumN for rgbd_dataset_freiburgN_*).
+    /// Camera preset (default: the folder's camera.yaml, else tumN for
+    /// rgbd_dataset_freiburgN_* and bonn for rgbd_bonn_*).
     #[arg(long, value_enum, conflicts_with = "settings")]
     pub camera: Option<CameraPreset>,
     /// ORB-SLAM2 settings YAML (Camera.*, ThDepth, DepthMapFactor, ORBextractor.*).
@@ -103,6 +106,7 @@ impl CameraPreset {
             CameraPreset::Tum2 => Settings::tum2(),
             CameraPreset::Tum3 => Settings::tum3(),
             CameraPreset::Grade => Settings::grade(),
+            CameraPreset::Bonn => Settings::bonn(),
         }
     }
 }
@@ -123,7 +127,7 @@ pub(crate) fn read_settings(path: &Path) -> anyhow::Result<Settings> {
 }
 
 /// The settings of a run: `--settings`, else `--camera`, else the folder's `camera.yaml`,
-/// else the preset of a `rgbd_dataset_freiburgN_*` folder, else an error.
+/// else the preset of a `rgbd_dataset_freiburgN_*` or `rgbd_bonn_*` folder, else an error.
 pub(crate) fn resolve_settings(args: &Args) -> anyhow::Result<Settings> {
     if let Some(p) = &args.settings {
         return read_settings(p);
