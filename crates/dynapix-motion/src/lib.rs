@@ -11,6 +11,8 @@
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
 //! - [`pipeline`]: one frame end to end, ablations, and the 16-bit file encoding (spec §1.8);
+//! - [`static_depth`]: the static depth of a view from a wide window of frames and the
+//!   geometric cue (nearer than the static scene ⇒ not static; new, see the module);
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -25,6 +27,7 @@ pub mod moving;
 pub mod noise;
 pub mod pipeline;
 pub mod splat;
+pub mod static_depth;
 
 #[cfg(test)]
 pub(crate) mod testutil;
@@ -40,6 +43,10 @@ pub use pipeline::{
     MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
 };
 pub use splat::{SplatParams, Warped, pixel_rays, splat};
+pub use static_depth::{
+    DepthView, StaticDepth, StaticDepthParams, WorkingDepth, geometric_term, select_views,
+    static_depth,
+};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;

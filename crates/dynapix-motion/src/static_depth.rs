@@ -1,0 +1,627 @@
+//! Static depth and the geometric cue (new in this project; not in the paper).
+//!
+//! Movers are in front of the static scene: a pixel whose depth is clearly nearer than the
+//! static surface seen at the same place from other times is not static. The static depth of
+//! the current view is built from the depth maps of many frames over a wide time window
+//! (seconds, past and future), each forward-splatted into the current view with its relative
+//! pose (nearest surface per pixel). Per pixel, the static surface is the farthest depth that
+//! at least `min_support` views agree on (movers occlude the static scene, so they are nearer;
+//! a single far outlier is not trusted), refined to the median of the views that agree with it.
+//! Because the window spans seconds, the scene behind a person who stays in one place for a
+//! moment is still recovered from the frames before they arrived or after they left.
+//!
+//! The cue is the paper's movable term (difference from a static background, §3.1) computed
+//! on depth instead of colour, so it covers whole bodies instead of textured edges. It is
+//! evaluated at a working resolution of about [`StaticDepthParams::working_width`] pixels
+//! across, so its pixel constants mean the same at every input resolution.
+//!
+//! Everything here is pure computation; which frames and poses to use is the caller's choice.
+
+use dynapix_geometry::camera::PinholeCamera;
+use dynapix_geometry::se3::Se3;
+use image::Luma;
+use nalgebra::Point3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::{FloatImage, MotionError, check_size, pixel_rays};
+
+/// Parameters of the static depth and the geometric cue.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StaticDepthParams {
+    /// Working image width in pixels (320): the input is subsampled by
+    /// `round(width / working_width)` (at least 1).
+    pub working_width: u32,
+    /// Half width of the time window of neighbour views, in seconds (2.0).
+    pub window_s: f64,
+    /// Largest number of neighbour views, spread evenly over the window (24).
+    pub max_views: usize,
+    /// Depth agreement tolerance `tol(z) = tol_a + tol_b·z²`: constant part in metres (0.03).
+    pub tol_a: f32,
+    /// Depth agreement tolerance: quadratic part in 1/m (0.005; Kinect depth noise grows with
+    /// the square of the distance).
+    pub tol_b: f32,
+    /// Views that must agree on a static surface, the one that sees it included (3).
+    pub min_support: usize,
+    /// Smallest valid depth in metres (0.1).
+    pub min_depth: f32,
+    /// Misalignment tolerance in working pixels (2): a pixel is near only when it is nearer
+    /// than every static depth within this radius, so static depth edges that the poses
+    /// misplace by a pixel or two are not taken for movers.
+    pub align_radius: u32,
+    /// Opening radius at working resolution (1: 3×3) that removes isolated detections.
+    pub open_radius: u32,
+    /// Dilation radius at working resolution (4: 9×9) that covers silhouettes, where depth is
+    /// unreliable.
+    pub dilate_radius: u32,
+    /// Steps of 1 working pixel by which detections spread into pixels without depth (8):
+    /// dark clothes and hair often have none.
+    pub fill_steps: u32,
+}
+
+impl Default for StaticDepthParams {
+    fn default() -> Self {
+        Self {
+            working_width: 320,
+            window_s: 2.0,
+            max_views: 24,
+            tol_a: 0.03,
+            tol_b: 0.005,
+            min_support: 3,
+            min_depth: 0.1,
+            align_radius: 2,
+            open_radius: 1,
+            dilate_radius: 4,
+            fill_steps: 8,
+        }
+    }
+}
+
+impl StaticDepthParams {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), MotionError> {
+        let bad = |name: &'static str, message: &str| {
+            Err(MotionError::InvalidParam {
+                name,
+                message: message.to_string(),
+            })
+        };
+        if self.working_width == 0 {
+            return bad("working_width", "must be at least 1");
+        }
+        if !(self.window_s.is_finite() && self.window_s > 0.0) {
+            return bad("window_s", "must be a positive number of seconds");
+        }
+        if self.max_views == 0 {
+            return bad("max_views", "must be at least 1");
+        }
+        if !(self.tol_a.is_finite() && self.tol_a >= 0.0 && self.tol_b.is_finite())
+            || self.tol_b < 0.0
+            || self.tol_a + self.tol_b <= 0.0
+        {
+            return bad("tol_a/tol_b", "must be finite, non-negative and not both 0");
+        }
+        if self.min_support == 0 {
+            return bad("min_support", "must be at least 1");
+        }
+        if !(self.min_depth.is_finite() && self.min_depth > 0.0) {
+            return bad("min_depth", "must be a positive depth in metres");
+        }
+        Ok(())
+    }
+
+    /// Subsampling factor for an image `width` pixels wide.
+    pub fn factor(&self, width: u32) -> u32 {
+        ((width as f64 / self.working_width.max(1) as f64).round() as u32).max(1)
+    }
+
+    /// Depth agreement tolerance at depth `z`.
+    pub fn tol(&self, z: f32) -> f32 {
+        self.tol_a + self.tol_b * z * z
+    }
+}
+
+/// A depth map subsampled to the working resolution: pixel `(i, j)` holds the depth of input
+/// pixel `(i·factor, j·factor)` (no averaging across depth edges).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorkingDepth {
+    /// Subsampling factor.
+    pub factor: u32,
+    /// Width and height of the input image.
+    pub full_size: (u32, u32),
+    /// Depth in metres at working resolution (0 = none).
+    pub depth: FloatImage,
+}
+
+impl WorkingDepth {
+    /// Subsamples a full-resolution depth map.
+    pub fn new(depth: &FloatImage, params: &StaticDepthParams) -> Self {
+        let f = params.factor(depth.width());
+        let w = depth.width().div_ceil(f);
+        let h = depth.height().div_ceil(f);
+        let d = FloatImage::from_fn(w, h, |i, j| {
+            let z = depth.get_pixel(i * f, j * f).0[0];
+            Luma([if z.is_finite() && z > 0.0 { z } else { 0.0 }])
+        });
+        Self {
+            factor: f,
+            full_size: depth.dimensions(),
+            depth: d,
+        }
+    }
+}
+
+/// One neighbour view for the static depth: its subsampled depth and `T_cs`, which maps its
+/// camera coordinates into the current camera's.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthView<'a> {
+    /// The neighbour's depth.
+    pub depth: &'a WorkingDepth,
+    /// Relative pose current ← neighbour.
+    pub t_cs: Se3,
+}
+
+/// Viewing rays of the working pixels: ray of input pixel `(i·f, j·f)`.
+struct Rays {
+    w: u32,
+    rays: Vec<[f64; 2]>,
+}
+
+impl Rays {
+    fn new(cam: &PinholeCamera, factor: u32, w: u32, h: u32) -> Self {
+        let table = pixel_rays(cam);
+        let mut rays = Vec::with_capacity((w * h) as usize);
+        for j in 0..h {
+            for i in 0..w {
+                let (x, y) = (i * factor, j * factor);
+                let r = match &table {
+                    Some(t) => t.ray(x, y).unwrap_or([f64::NAN; 2]),
+                    None => [(x as f64 - cam.cx) / cam.fx, (y as f64 - cam.cy) / cam.fy],
+                };
+                rays.push(r);
+            }
+        }
+        Self { w, rays }
+    }
+
+    fn at(&self, i: u32, j: u32) -> [f64; 2] {
+        self.rays[(j * self.w + i) as usize]
+    }
+}
+
+/// The static depth of the current view at working resolution (`NaN` where no surface is
+/// supported by enough views).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StaticDepth {
+    /// Static depth in metres, `NaN` = unknown.
+    pub depth: FloatImage,
+    /// Subsampling factor relative to the input.
+    pub factor: u32,
+}
+
+/// Forward-splats `view` into the current camera at working resolution, keeping the nearest
+/// surface per pixel (`INFINITY` = nothing).
+fn splat_nearest(cam: &PinholeCamera, rays: &Rays, view: &DepthView<'_>, out: &mut [f32]) {
+    let f = view.depth.factor as f64;
+    let d = &view.depth.depth;
+    let (w, h) = d.dimensions();
+    let table = pixel_rays(cam);
+    for j in 0..h {
+        for i in 0..w {
+            let z = d.get_pixel(i, j).0[0];
+            if !(z > 0.0) {
+                continue;
+            }
+            let r = rays.at(i, j);
+            if !r[0].is_finite() {
+                continue;
+            }
+            let z = z as f64;
+            let p = view.t_cs * Point3::new(r[0] * z, r[1] * z, z);
+            if p.z <= 0.0 {
+                continue;
+            }
+            let uv = match &table {
+                Some(t) => t.project(&p),
+                None => cam.project(&p),
+            };
+            let Some(uv) = uv else { continue };
+            let (u, v) = ((uv.x / f).round(), (uv.y / f).round());
+            if !(u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64) {
+                continue;
+            }
+            let k = v as usize * w as usize + u as usize;
+            let zf = p.z as f32;
+            if zf < out[k] {
+                out[k] = zf;
+            }
+        }
+    }
+}
+
+/// Static depth of the current view from neighbour views (see the module docs). All views
+/// must have the same working size.
+pub fn static_depth(
+    cam: &PinholeCamera,
+    views: &[DepthView<'_>],
+    params: &StaticDepthParams,
+) -> Result<StaticDepth, MotionError> {
+    params.validate()?;
+    let Some(first) = views.first() else {
+        return Err(MotionError::InvalidParam {
+            name: "views",
+            message: "the static depth needs at least one neighbour view".into(),
+        });
+    };
+    let size = first.depth.depth.dimensions();
+    let factor = first.depth.factor;
+    for v in views {
+        check_size("neighbour depth", size, v.depth.depth.dimensions())?;
+        check_size(
+            "neighbour depth (input size)",
+            first.depth.full_size,
+            v.depth.full_size,
+        )?;
+    }
+    check_size("camera", (cam.width, cam.height), first.depth.full_size)?;
+    let (w, h) = size;
+    let n = (w * h) as usize;
+    let rays = Rays::new(cam, factor, w, h);
+    let splats: Vec<Vec<f32>> = views
+        .par_iter()
+        .map(|v| {
+            let mut out = vec![f32::INFINITY; n];
+            splat_nearest(cam, &rays, v, &mut out);
+            out
+        })
+        .collect();
+    let mut depth = vec![f32::NAN; n];
+    depth
+        .par_chunks_mut(w as usize)
+        .enumerate()
+        .for_each(|(j, row)| {
+            let mut vals: Vec<f32> = Vec::with_capacity(splats.len());
+            for (i, out) in row.iter_mut().enumerate() {
+                let k = j * w as usize + i;
+                vals.clear();
+                vals.extend(splats.iter().map(|s| s[k]).filter(|z| z.is_finite()));
+                *out = farthest_supported(&mut vals, params);
+            }
+        });
+    Ok(StaticDepth {
+        depth: FloatImage::from_raw(w, h, depth).unwrap_or_else(|| FloatImage::new(w, h)),
+        factor,
+    })
+}
+
+/// The farthest value that at least `min_support` values agree with (within `tol`), refined
+/// to the median of the values agreeing with it; `NaN` when none is supported.
+fn farthest_supported(vals: &mut [f32], params: &StaticDepthParams) -> f32 {
+    if vals.len() < params.min_support {
+        return f32::NAN;
+    }
+    vals.sort_unstable_by(|a, b| b.total_cmp(a));
+    for (k, &v) in vals.iter().enumerate() {
+        let tol = params.tol(v);
+        // Sorted descending: the values within tol of v are a contiguous run around k.
+        let lo = vals[..k].iter().rev().take_while(|&&x| x - v < tol).count();
+        let hi = vals[k + 1..].iter().take_while(|&&x| v - x < tol).count();
+        if lo + hi + 1 >= params.min_support {
+            let run = &vals[k - lo..=k + hi];
+            return median_sorted_desc(run);
+        }
+    }
+    f32::NAN
+}
+
+fn median_sorted_desc(run: &[f32]) -> f32 {
+    let m = run.len();
+    if m % 2 == 1 {
+        run[m / 2]
+    } else {
+        0.5 * (run[m / 2 - 1] + run[m / 2])
+    }
+}
+
+/// Minimum over a square window of radius `r`, ignoring `NaN` (NaN where all are NaN).
+fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    if r == 0 {
+        return v.to_vec();
+    }
+    let fmin = |a: f32, b: f32| if b < a || a.is_nan() { b } else { a };
+    let mut tmp = vec![f32::NAN; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            tmp[y * w + x] = v[y * w + a..=y * w + b]
+                .iter()
+                .fold(f32::NAN, |m, &q| fmin(m, q));
+        }
+    }
+    let mut out = vec![f32::NAN; w * h];
+    for y in 0..h {
+        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (a..=b).fold(f32::NAN, |m, yy| fmin(m, tmp[yy * w + x]));
+        }
+    }
+    out
+}
+
+/// Binary morphology on a working-resolution mask.
+fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    if r == 0 {
+        return mask.to_vec();
+    }
+    // Separable: rows, then columns.
+    let mut tmp = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            tmp[y * w + x] = mask[y * w + a..=y * w + b].iter().any(|&m| m);
+        }
+    }
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (a..=b).any(|yy| tmp[yy * w + x]);
+        }
+    }
+    out
+}
+
+fn erode(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let inv: Vec<bool> = mask.iter().map(|&m| !m).collect();
+    dilate(&inv, w, h, r).into_iter().map(|m| !m).collect()
+}
+
+/// The geometric cue at full resolution: 1 where the current depth is nearer than the static
+/// depth by more than the tolerance (after an opening, a dilation and spreading into pixels
+/// without depth), else 0.
+pub fn geometric_term(
+    current: &WorkingDepth,
+    sd: &StaticDepth,
+    params: &StaticDepthParams,
+) -> Result<FloatImage, MotionError> {
+    params.validate()?;
+    check_size(
+        "static depth",
+        current.depth.dimensions(),
+        sd.depth.dimensions(),
+    )?;
+    let (w, h) = current.depth.dimensions();
+    let (wu, hu) = (w as usize, h as usize);
+    let z = current.depth.as_raw();
+    let s = min_filter(sd.depth.as_raw(), wu, hu, params.align_radius as usize);
+    let near: Vec<bool> = z
+        .iter()
+        .zip(&s)
+        .map(|(&z, &s)| z > params.min_depth && s.is_finite() && z < s - params.tol(s))
+        .collect();
+    let r = params.open_radius as usize;
+    let opened = dilate(&erode(&near, wu, hu, r), wu, hu, r);
+    let mut mask = dilate(&opened, wu, hu, params.dilate_radius as usize);
+    for _ in 0..params.fill_steps {
+        let grown = dilate(&mask, wu, hu, 1);
+        for (k, m) in mask.iter_mut().enumerate() {
+            if !(z[k] > params.min_depth) {
+                *m = grown[k];
+            }
+        }
+    }
+    let f = current.factor;
+    let (fw, fh) = current.full_size;
+    Ok(FloatImage::from_fn(fw, fh, |x, y| {
+        let (i, j) = ((x / f).min(w - 1), (y / f).min(h - 1));
+        Luma([if mask[(j * w + i) as usize] { 1.0 } else { 0.0 }])
+    }))
+}
+
+/// Indices of the neighbour views of frame `t` among frames with timestamps `stamps`: frames
+/// within `window_s` seconds (not `t` itself) for which `usable` holds, at most `max_views`
+/// of them, spread evenly.
+pub fn select_views(
+    stamps: &[f64],
+    t: usize,
+    usable: impl Fn(usize) -> bool,
+    params: &StaticDepthParams,
+) -> Vec<usize> {
+    let Some(&tt) = stamps.get(t) else {
+        return Vec::new();
+    };
+    let cands: Vec<usize> = (0..stamps.len())
+        .filter(|&s| s != t && (stamps[s] - tt).abs() <= params.window_s && usable(s))
+        .collect();
+    if cands.len() <= params.max_views {
+        return cands;
+    }
+    let m = params.max_views;
+    (0..m)
+        .map(|k| cands[(k * (cands.len() - 1)) / (m - 1).max(1)])
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynapix_geometry::se3::exp;
+    use nalgebra::Vector6;
+
+    fn cam(w: u32, h: u32) -> PinholeCamera {
+        PinholeCamera::new(
+            w,
+            h,
+            0.8 * w as f64,
+            0.8 * w as f64,
+            w as f64 / 2.0,
+            h as f64 / 2.0,
+        )
+    }
+
+    /// A fronto-parallel wall at `z` with an optional box nearer than it.
+    fn wall(w: u32, h: u32, z: f32, block: Option<(u32, u32, u32, u32, f32)>) -> FloatImage {
+        FloatImage::from_fn(w, h, |x, y| {
+            if let Some((x0, y0, x1, y1, zb)) = block
+                && x >= x0
+                && x < x1
+                && y >= y0
+                && y < y1
+            {
+                return Luma([zb]);
+            }
+            Luma([z])
+        })
+    }
+
+    fn params() -> StaticDepthParams {
+        StaticDepthParams {
+            working_width: 80,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn farthest_supported_ignores_a_single_far_outlier() {
+        let p = params();
+        let mut v = vec![2.0, 2.01, 1.99, 1.0, 1.01, 5.0];
+        let s = farthest_supported(&mut v, &p);
+        assert!((s - 2.0).abs() < 0.011, "{s}");
+        let mut v = vec![1.0, 5.0];
+        assert!(farthest_supported(&mut v, &p).is_nan());
+    }
+
+    #[test]
+    fn a_box_that_moved_away_is_near_and_the_wall_is_not() {
+        let (w, h) = (80, 60);
+        let c = cam(w, h);
+        let p = params();
+        // The current frame sees a box at 1 m in front of a wall at 3 m; neighbours (the
+        // same camera pose) see only the wall: the box is near, the wall is static.
+        let cur = WorkingDepth::new(&wall(w, h, 3.0, Some((20, 20, 40, 40, 1.0))), &p);
+        let nb: Vec<WorkingDepth> = (0..4)
+            .map(|_| WorkingDepth::new(&wall(w, h, 3.0, None), &p))
+            .collect();
+        let views: Vec<DepthView> = nb
+            .iter()
+            .map(|d| DepthView {
+                depth: d,
+                t_cs: Se3::identity(),
+            })
+            .collect();
+        let sd = static_depth(&c, &views, &p).unwrap();
+        assert!((sd.depth.get_pixel(5, 5).0[0] - 3.0).abs() < 1e-4);
+        let g = geometric_term(&cur, &sd, &p).unwrap();
+        assert_eq!(g.get_pixel(30, 30).0[0], 1.0);
+        assert_eq!(g.get_pixel(5, 5).0[0], 0.0);
+        assert_eq!(g.get_pixel(75, 55).0[0], 0.0);
+        // The dilation covers the silhouette, but not far beyond it.
+        assert_eq!(g.get_pixel(18, 30).0[0], 1.0);
+        assert_eq!(g.get_pixel(10, 30).0[0], 0.0);
+    }
+
+    #[test]
+    fn a_box_present_in_every_view_is_static() {
+        let (w, h) = (80, 60);
+        let c = cam(w, h);
+        let p = params();
+        let d = wall(w, h, 3.0, Some((20, 20, 40, 40, 1.0)));
+        let cur = WorkingDepth::new(&d, &p);
+        let nb: Vec<WorkingDepth> = (0..4).map(|_| WorkingDepth::new(&d, &p)).collect();
+        let views: Vec<DepthView> = nb
+            .iter()
+            .map(|d| DepthView {
+                depth: d,
+                t_cs: Se3::identity(),
+            })
+            .collect();
+        let sd = static_depth(&c, &views, &p).unwrap();
+        let g = geometric_term(&cur, &sd, &p).unwrap();
+        assert!(g.as_raw().iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn moved_views_are_splatted_with_their_pose() {
+        // A wall at 2 m seen from cameras shifted sideways: with the right relative poses the
+        // static depth is the wall everywhere the views overlap; with identity poses and a
+        // tilted wall it would not be.
+        let (w, h) = (80, 60);
+        let c = cam(w, h);
+        let p = params();
+        // Slanted plane z = 2 + 0.5·X in the current camera.
+        let plane = |t: &Se3| {
+            let inv = t.inverse();
+            FloatImage::from_fn(w, h, |x, y| {
+                // Ray in the neighbour camera; intersect with the plane expressed there.
+                let r = [(x as f64 - c.cx) / c.fx, (y as f64 - c.cy) / c.fy];
+                // Solve for depth s: point q = s·(r,1) in neighbour; in current: p = T·q.
+                let dir = t.rotation * nalgebra::Vector3::new(r[0], r[1], 1.0);
+                let o = t.translation.vector;
+                // p.z = 2 + 0.5 p.x  →  o.z + s dir.z = 2 + 0.5 (o.x + s dir.x)
+                let s = (2.0 + 0.5 * o.x - o.z) / (dir.z - 0.5 * dir.x);
+                let _ = inv;
+                Luma([s as f32])
+            })
+        };
+        let poses: Vec<Se3> = [-0.1, -0.05, 0.05, 0.1]
+            .iter()
+            .map(|&dx| exp(&Vector6::new(0.0, 0.02, 0.0, dx, 0.0, 0.0)))
+            .collect();
+        let nb: Vec<WorkingDepth> = poses
+            .iter()
+            .map(|t| WorkingDepth::new(&plane(t), &p))
+            .collect();
+        let views: Vec<DepthView> = nb
+            .iter()
+            .zip(&poses)
+            .map(|(d, t)| DepthView { depth: d, t_cs: *t })
+            .collect();
+        let sd = static_depth(&c, &views, &p).unwrap();
+        let cur = WorkingDepth::new(&plane(&Se3::identity()), &p);
+        let mut checked = 0;
+        for j in 10..50 {
+            for i in 20..60 {
+                let s = sd.depth.get_pixel(i, j).0[0];
+                let z = cur.depth.get_pixel(i, j).0[0];
+                if s.is_finite() {
+                    assert!((s - z).abs() < 0.02, "({i},{j}) static {s} vs {z}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 1000, "{checked}");
+        let g = geometric_term(&cur, &sd, &p).unwrap();
+        assert!(g.as_raw().iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn views_are_chosen_evenly_inside_the_window() {
+        let stamps: Vec<f64> = (0..300).map(|k| k as f64 / 30.0).collect();
+        let p = StaticDepthParams::default();
+        let v = select_views(&stamps, 150, |_| true, &p);
+        assert_eq!(v.len(), 24);
+        assert!(
+            v.iter()
+                .all(|&s| s != 150 && (stamps[s] - 5.0).abs() <= 2.0)
+        );
+        assert_eq!(v[0], 90);
+        assert_eq!(*v.last().unwrap(), 210);
+        let v = select_views(&stamps, 0, |s| s % 2 == 0, &p);
+        assert!(v.iter().all(|&s| s % 2 == 0 && s > 0 && s <= 60));
+    }
+
+    #[test]
+    fn bad_parameters_are_refused() {
+        let p = StaticDepthParams {
+            min_support: 0,
+            ..Default::default()
+        };
+        assert!(p.validate().is_err());
+        let p = StaticDepthParams {
+            window_s: f64::NAN,
+            ..Default::default()
+        };
+        assert!(p.validate().is_err());
+    }
+}
