@@ -11,6 +11,8 @@
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
 //! - [`pipeline`]: one frame end to end, ablations, and the 16-bit file encoding (spec §1.8);
+//! - [`rigidity`]: a pose-free motion cue, the residual of each pixel against the dominant
+//!   rigid motion to the neighbours found by RANSAC on depth-backed optical flow (new);
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -24,6 +26,7 @@ pub mod movable;
 pub mod moving;
 pub mod noise;
 pub mod pipeline;
+pub mod rigidity;
 pub mod splat;
 
 #[cfg(test)]
@@ -38,6 +41,10 @@ pub use movable::{Movable, MovableParams, movable};
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{
     MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
+};
+pub use rigidity::{
+    Correspondences, RigidFit, RigidFitError, RigidFrame, RigidityMaps, RigidityParams,
+    rigidity_probability, rigidity_probability_with,
 };
 pub use splat::{SplatParams, Warped, pixel_rays, splat};
 
@@ -92,6 +99,9 @@ pub enum MotionError {
     /// The optical flow failed.
     #[error("optical flow: {0}")]
     Flow(#[from] dynapix_flow::FlowError),
+    /// No rigid motion could be fitted between two frames ([`rigidity::fit_rigid_motion`]).
+    #[error("rigid motion fit: {0}")]
+    RigidFit(#[from] rigidity::RigidFitError),
 }
 
 /// Checks that an image has the expected size.
