@@ -13,6 +13,8 @@
 //! - [`pipeline`]: one frame end to end, ablations, and the 16-bit file encoding (spec §1.8);
 //! - [`static_depth`]: the static depth of a view from a wide window of frames and the
 //!   geometric cue (nearer than the static scene ⇒ not static; new, see the module);
+//! - [`rigidity`]: a pose-free motion cue, the residual of each pixel against the dominant
+//!   rigid motion to the neighbours found by RANSAC on depth-backed optical flow (new);
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -26,6 +28,7 @@ pub mod movable;
 pub mod moving;
 pub mod noise;
 pub mod pipeline;
+pub mod rigidity;
 pub mod splat;
 pub mod static_depth;
 
@@ -41,6 +44,10 @@ pub use movable::{Movable, MovableParams, movable};
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{
     MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
+};
+pub use rigidity::{
+    Correspondences, RigidFit, RigidFitError, RigidFrame, RigidityMaps, RigidityParams,
+    rigidity_probability, rigidity_probability_with,
 };
 pub use splat::{SplatParams, Warped, pixel_rays, splat};
 pub use static_depth::{
@@ -99,6 +106,9 @@ pub enum MotionError {
     /// The optical flow failed.
     #[error("optical flow: {0}")]
     Flow(#[from] dynapix_flow::FlowError),
+    /// No rigid motion could be fitted between two frames ([`rigidity::fit_rigid_motion`]).
+    #[error("rigid motion fit: {0}")]
+    RigidFit(#[from] rigidity::RigidFitError),
 }
 
 /// Checks that an image has the expected size.
