@@ -33,6 +33,10 @@ fn parse_args() -> Result<Args, Error> {
     let mut pos = Vec::new();
     let mut max_frames = None;
     let mut params = RigidityParams::default();
+    if let Ok(v) = std::env::var("DPX_RIGIDITY") {
+        // JSON overrides, e.g. DPX_RIGIDITY='{"sigma_px": 0.5}'.
+        params = serde_json::from_str(&v)?;
+    }
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -108,9 +112,10 @@ fn main() -> Result<(), Error> {
             .into_par_iter()
             .map(load)
             .collect::<Result<_, _>>()?;
-        let frame = |i: usize| RigidFrame {
+        let frame = |i: usize, o: i64| RigidFrame {
             gray: &loaded[i - lo].0,
             depth: &loaded[i - lo].1,
+            offset: o,
         };
         let reports: Vec<FrameReport> = (first..last)
             .into_par_iter()
@@ -121,9 +126,11 @@ fn main() -> Result<(), Error> {
                     .filter_map(|&o| usize::try_from(i as i64 + o).ok())
                     .filter(|&j| j < n)
                     .collect();
-                let neighbours: Vec<RigidFrame> =
-                    neighbours_idx.iter().map(|&j| frame(j)).collect();
-                let maps = rigidity_probability(&frame(i), &neighbours, &cam, &args.params)?;
+                let neighbours: Vec<RigidFrame> = neighbours_idx
+                    .iter()
+                    .map(|&j| frame(j, j as i64 - i as i64))
+                    .collect();
+                let maps = rigidity_probability(&frame(i, 0), &neighbours, &cam, &args.params)?;
                 let name = seq.frames[i]
                     .rgb
                     .file_name()

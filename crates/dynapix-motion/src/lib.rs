@@ -51,8 +51,8 @@ pub use rigidity::{
 };
 pub use splat::{SplatParams, Warped, pixel_rays, splat};
 pub use static_depth::{
-    DepthView, StaticDepth, StaticDepthParams, WorkingDepth, geometric_term, select_views,
-    static_depth,
+    DepthView, StaticDepth, StaticDepthParams, WorkingDepth, geometric_frame, geometric_term,
+    select_views, static_depth,
 };
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.

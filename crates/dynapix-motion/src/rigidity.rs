@@ -84,6 +84,9 @@ pub struct RigidityParams {
     /// Neighbour frame offsets a caller should pass (e.g. `[-1, 1]`); the functions of this
     /// module take the neighbours themselves.
     pub offsets: Vec<i64>,
+    /// Smallest inlier fraction of a pair's best motion (0.5): below it movers may be the
+    /// majority and the pair is ambiguous, so it gives no evidence.
+    pub min_inlier_fraction: f64,
 }
 
 impl Default for RigidityParams {
@@ -105,6 +108,7 @@ impl Default for RigidityParams {
             r0: 3.0,
             r1: 8.0,
             offsets: vec![-1, 1],
+            min_inlier_fraction: 0.5,
         }
     }
 }
@@ -119,6 +123,12 @@ fn invalid(name: &'static str, message: impl Into<String>) -> MotionError {
 impl RigidityParams {
     /// Checks every value against its valid range.
     pub fn validate(&self) -> Result<(), MotionError> {
+        if !(0.0..=1.0).contains(&self.min_inlier_fraction) {
+            return Err(invalid(
+                "min_inlier_fraction",
+                format!("must be in [0, 1], got {}", self.min_inlier_fraction),
+            ));
+        }
         let finite_nonneg = |name, v: f64| {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
@@ -172,7 +182,7 @@ impl RigidityParams {
 }
 
 /// Why no rigid motion could be fitted between two frames.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RigidFitError {
     /// Too few pixels have depth and a flow target with depth.
     #[error("too few correspondences: {got} (need {needed})")]
@@ -187,6 +197,17 @@ pub enum RigidFitError {
     NoHypothesis {
         /// Samples drawn.
         samples: usize,
+    },
+    /// The best motion explains too few correspondences to be the static scene's: movers
+    /// may dominate the view, so the pair gives no evidence.
+    #[error(
+        "ambiguous dominant motion: {fraction:.2} of the correspondences are inliers (need {needed:.2})"
+    )]
+    Ambiguous {
+        /// Inlier fraction of the best motion.
+        fraction: f64,
+        /// [`RigidityParams::min_inlier_fraction`].
+        needed: f64,
     },
 }
 
@@ -242,6 +263,9 @@ pub struct RigidFrame<'a> {
     pub gray: &'a GrayImage,
     /// Depth in metres (0 = invalid).
     pub depth: &'a FloatImage,
+    /// Frame offset from the current frame (0 for the current frame itself): neighbours at
+    /// the same distance |offset| form one baseline (see [`rigidity_from_residuals`]).
+    pub offset: i64,
 }
 
 /// The rigidity cue of one frame.
@@ -598,26 +622,38 @@ pub fn dense_residual(
     Ok(out)
 }
 
-/// Combines the dense residuals of the neighbours into P: per pixel the smallest residual
-/// among the neighbours that give one (not NaN), then `P = clamp((r − r0)/(r1 − r0), 0, 1)`;
-/// 0 where no neighbour gives a residual. Returns (P, the combined residual).
+/// P of a frame from the dense residuals of its neighbours, each with its baseline
+/// (|frame offset|). Per baseline, the residual is the minimum over the neighbours that give
+/// a value (a pixel occluded or disoccluded on one side does not look moving); over
+/// baselines, the maximum (a slow mover shows at the longer baseline, a fast one at the
+/// shorter). Then P = clamp((r − r0)/(r1 − r0), 0, 1); pixels without any value get 0.
+/// Returns (P, combined residual with NaN where none).
 pub fn rigidity_from_residuals(
-    residuals: &[FloatImage],
+    residuals: &[(u64, FloatImage)],
     params: &RigidityParams,
 ) -> Result<(FloatImage, FloatImage), MotionError> {
     params.validate()?;
-    let Some(first) = residuals.first() else {
+    let Some((_, first)) = residuals.first() else {
         return Err(invalid("residuals", "need at least one neighbour"));
     };
     let size = first.dimensions();
-    for r in residuals {
+    for (_, r) in residuals {
         check_size("residual of a neighbour", size, r.dimensions())?;
     }
+    let mut baselines: Vec<u64> = residuals.iter().map(|(b, _)| *b).collect();
+    baselines.sort_unstable();
+    baselines.dedup();
     let mut combined = FloatImage::from_pixel(size.0, size.1, image::Luma([f32::NAN]));
-    for r in residuals {
-        for (c, &v) in combined.iter_mut().zip(r.iter()) {
-            // f32::min returns the other operand when one is NaN.
-            *c = c.min(v);
+    for b in baselines {
+        let mut per = FloatImage::from_pixel(size.0, size.1, image::Luma([f32::NAN]));
+        for (_, r) in residuals.iter().filter(|(rb, _)| *rb == b) {
+            for (c, &v) in per.iter_mut().zip(r.iter()) {
+                // f32::min returns the other operand when one is NaN.
+                *c = c.min(v);
+            }
+        }
+        for (c, &v) in combined.iter_mut().zip(per.iter()) {
+            *c = c.max(v);
         }
     }
     let (r0, span) = (params.r0, params.r1 - params.r0);
@@ -677,6 +713,12 @@ pub fn rigidity_probability_with(
             let f = flow.flow(cur.gray, nb.gray)?;
             let corr = correspondences(cur.depth, nb.depth, &f, &rays, params)?;
             let fit = match fit_rigid_motion(&corr, cam, params) {
+                Ok(fit) if fit.inlier_fraction() < params.min_inlier_fraction => {
+                    Err(RigidFitError::Ambiguous {
+                        fraction: fit.inlier_fraction(),
+                        needed: params.min_inlier_fraction,
+                    })
+                }
                 Ok(fit) => Ok(fit),
                 Err(MotionError::RigidFit(e)) => Err(e),
                 Err(e) => return Err(e),
@@ -697,10 +739,10 @@ pub fn rigidity_probability_with(
         .collect();
     let mut fits = Vec::with_capacity(neighbours.len());
     let mut residuals = Vec::with_capacity(neighbours.len());
-    for r in per_neighbour {
+    for (r, nb) in per_neighbour.into_iter().zip(neighbours) {
         let (fit, residual) = r?;
         fits.push(fit);
-        residuals.extend(residual);
+        residuals.extend(residual.map(|r| (nb.offset.unsigned_abs(), r)));
     }
     let (p, residual) = if residuals.is_empty() {
         (
@@ -1095,7 +1137,7 @@ mod tests {
         let nan = f32::NAN;
         let a = FloatImage::from_raw(6, 1, vec![2.0, 5.5, 10.0, nan, nan, f32::INFINITY]).unwrap();
         let b = FloatImage::from_raw(6, 1, vec![9.0, 20.0, 4.0, 7.0, nan, nan]).unwrap();
-        let (p, r) = rigidity_from_residuals(&[a.clone(), b], &params).unwrap();
+        let (p, r) = rigidity_from_residuals(&[(1, a.clone()), (1, b.clone())], &params).unwrap();
         assert_eq!(&r.as_raw()[..4], &[2.0, 5.5, 4.0, 7.0]);
         assert!(r.as_raw()[4].is_nan());
         assert_eq!(r.as_raw()[5], f32::INFINITY);
@@ -1107,9 +1149,12 @@ mod tests {
             rigidity_from_residuals(&[], &params),
             Err(MotionError::InvalidParam { .. })
         ));
+        // Over baselines the larger residual wins: a slow mover shows at the long baseline.
+        let (_, r) = rigidity_from_residuals(&[(1, a.clone()), (4, b)], &params).unwrap();
+        assert_eq!(&r.as_raw()[..4], &[9.0, 20.0, 10.0, 7.0]);
         let other = FloatImage::new(5, 1);
         assert!(matches!(
-            rigidity_from_residuals(&[a, other], &params),
+            rigidity_from_residuals(&[(1, a), (1, other)], &params),
             Err(MotionError::SizeMismatch { .. })
         ));
     }
@@ -1164,6 +1209,7 @@ mod tests {
         let frame = |i: usize| RigidFrame {
             gray: &s.frames[i].0,
             depth: &s.frames[i].1,
+            offset: i as i64 - k as i64,
         };
         let nbs = [frame(k - 1), frame(k + 1)];
         rigidity_probability(&frame(k), &nbs, &s.cam, params).expect("maps")
@@ -1257,6 +1303,7 @@ mod tests {
         let cur = RigidFrame {
             gray: &gray,
             depth: &depth,
+            offset: 0,
         };
         let params = RigidityParams::default();
         let maps = rigidity_probability(&cur, &[cur], &cam, &params).unwrap();
@@ -1272,6 +1319,7 @@ mod tests {
         let nb = RigidFrame {
             gray: &small,
             depth: &depth,
+            offset: 1,
         };
         assert!(matches!(
             rigidity_probability(&cur, &[nb], &cam, &params),

@@ -443,6 +443,38 @@ pub fn select_views(
         .collect()
 }
 
+/// The geometric cue of frame `t` of a sequence: neighbour views chosen by [`select_views`]
+/// among frames with a pose, splatted with the relative poses from `poses_wc` (camera-to-world,
+/// `None` = unknown). A frame without a pose, or without usable neighbours, gets P = 0.
+pub fn geometric_frame(
+    cam: &PinholeCamera,
+    t: usize,
+    stamps: &[f64],
+    poses_wc: &[Option<Se3>],
+    depths: &[WorkingDepth],
+    params: &StaticDepthParams,
+) -> Result<FloatImage, MotionError> {
+    let (Some(cur), Some(Some(twc))) = (depths.get(t), poses_wc.get(t)) else {
+        return Ok(FloatImage::new(cam.width, cam.height));
+    };
+    let usable = |s: usize| matches!(poses_wc.get(s), Some(Some(_))) && s < depths.len();
+    let tcw = twc.inverse();
+    let views: Vec<DepthView<'_>> = select_views(stamps, t, usable, params)
+        .into_iter()
+        .filter_map(|s| {
+            Some(DepthView {
+                depth: depths.get(s)?,
+                t_cs: tcw * (*poses_wc.get(s)?)?,
+            })
+        })
+        .collect();
+    if views.is_empty() {
+        return Ok(FloatImage::new(cam.width, cam.height));
+    }
+    let sd = static_depth(cam, &views, params)?;
+    geometric_term(cur, &sd, params)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
