@@ -69,8 +69,13 @@ pub struct RigidityParams {
     pub chi2: f64,
     /// Rounds of refitting on the inliers after RANSAC.
     pub refine_rounds: usize,
-    /// Standard deviation (pixels) of the flow end point.
+    /// Standard deviation (pixels) of the flow end point at the focal length
+    /// [`RigidityParams::reference_focal_px`]; scaled with the camera's focal length, so the
+    /// cue means the same angle at every resolution.
     pub sigma_px: f64,
+    /// Focal length (pixels) at which `sigma_px` and `stride` are given (525: a Kinect at
+    /// 640×480).
+    pub reference_focal_px: f64,
     /// Quadratic coefficient `a` (1/m) of the depth noise `σ_z = a·z² + b`.
     pub sigma_z_quadratic: f64,
     /// Constant part `b` (m) of the depth noise `σ_z = a·z² + b`.
@@ -102,6 +107,7 @@ impl Default for RigidityParams {
             chi2: 27.0,
             refine_rounds: 5,
             sigma_px: 1.0,
+            reference_focal_px: 525.0,
             sigma_z_quadratic: 1.5e-3,
             sigma_z_constant: 0.003,
             min_projected_depth: 0.05,
@@ -122,6 +128,17 @@ fn invalid(name: &'static str, message: impl Into<String>) -> MotionError {
 
 impl RigidityParams {
     /// Checks every value against its valid range.
+    /// `sigma_px` at the focal length of `cam`.
+    pub fn sigma_px_for(&self, cam: &PinholeCamera) -> f64 {
+        self.sigma_px * cam.fx / self.reference_focal_px
+    }
+
+    /// `stride` at the focal length of `cam` (at least 1).
+    pub fn stride_for(&self, cam: &PinholeCamera) -> usize {
+        ((self.stride as f64 * cam.fx / self.reference_focal_px).round() as usize).max(1)
+    }
+
+    /// Checks the ranges.
     pub fn validate(&self) -> Result<(), MotionError> {
         if !(0.0..=1.0).contains(&self.min_inlier_fraction) {
             return Err(invalid(
@@ -159,6 +176,7 @@ impl RigidityParams {
         finite_nonneg("min_sample_area", self.min_sample_area)?;
         positive("chi2", self.chi2)?;
         positive("sigma_px", self.sigma_px)?;
+        positive("reference_focal_px", self.reference_focal_px)?;
         finite_nonneg("sigma_z_quadratic", self.sigma_z_quadratic)?;
         positive("sigma_z_constant", self.sigma_z_constant)?;
         if !self.min_projected_depth.is_finite() {
@@ -293,8 +311,8 @@ struct Model {
 impl Model {
     fn new(cam: &PinholeCamera, params: &RigidityParams) -> Self {
         Self {
-            fx_over_sigma: cam.fx / params.sigma_px,
-            fy_over_sigma: cam.fy / params.sigma_px,
+            fx_over_sigma: cam.fx / params.sigma_px_for(cam),
+            fy_over_sigma: cam.fy / params.sigma_px_for(cam),
             sz_a: params.sigma_z_quadratic,
             sz_b: params.sigma_z_constant,
             min_pz: params.min_projected_depth,
@@ -429,8 +447,9 @@ pub fn correspondences(
     let pair = Pair::new(depth_i, depth_j, flow, rays, params)?;
     let cam = rays.camera();
     let mut out = Correspondences::default();
-    for y in (0..cam.height).step_by(params.stride as usize) {
-        for x in (0..cam.width).step_by(params.stride as usize) {
+    let stride = params.stride_for(cam);
+    for y in (0..cam.height).step_by(stride) {
+        for x in (0..cam.width).step_by(stride) {
             if let Some(l) = pair.lift(x, y) {
                 out.source.push(Point3::from(l.a));
                 out.target
@@ -882,7 +901,11 @@ mod tests {
     #[test]
     fn residual_squared_follows_its_formula() {
         let cam = small_camera();
-        let params = RigidityParams::default();
+        // σ_px is given at the camera's own focal length here: 1 px.
+        let params = RigidityParams {
+            reference_focal_px: cam.fx,
+            ..Default::default()
+        };
         let id = Se3::identity();
         let a = Point3::new(0.2, -0.1, 2.0);
         assert_eq!(residual_squared(&id, &a, &a, &cam, &params), 0.0);
@@ -1058,7 +1081,11 @@ mod tests {
         let mut depth_j = depth.clone();
         depth_j.put_pixel(12, 0, image::Luma([0.05])); // no usable depth at one target
         let flow = FlowField::constant(w, h, [0.25, -0.375]);
-        let params = RigidityParams::default();
+        // The stride is given at the camera's own focal length here: 4 px.
+        let params = RigidityParams {
+            reference_focal_px: cam.fx,
+            ..Default::default()
+        };
         let c = correspondences(&depth, &depth_j, &flow, &rays, &params).unwrap();
         // Grid rows y = 0 lose their targets (v2 < 0); the last grid column stays inside.
         assert!(
@@ -1129,6 +1156,16 @@ mod tests {
         let wrong = se3([0.0; 3], [-0.2, 0.0, 0.0]);
         let r = dense_residual(&depth, &depth, &flow, &rays, &wrong, &params).unwrap();
         assert!(r.iter().filter(|v| !v.is_nan()).all(|&v| v > 8.0));
+    }
+
+    #[test]
+    fn pixel_constants_scale_with_the_focal_length() {
+        let p = RigidityParams::default();
+        let cam = |fx: f64| PinholeCamera::new(640, 480, fx, fx, 320.0, 240.0);
+        assert_eq!(p.stride_for(&cam(525.0)), 4);
+        assert_eq!(p.stride_for(&cam(262.5)), 2);
+        assert_eq!(p.stride_for(&cam(60.0)), 1);
+        assert!((p.sigma_px_for(&cam(262.5)) - 0.5).abs() < 1e-12);
     }
 
     #[test]
