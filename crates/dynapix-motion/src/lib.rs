@@ -9,7 +9,7 @@
 //! - [`moving`]: the moving term M from static/dynamic flow differencing (spec §1.7);
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
-//! - [`pipeline`]: one frame end to end, ablations, and the 16-bit file encoding (spec §1.8);
+//! - [`pipeline`]: one frame end to end and the ablations;
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -35,9 +35,7 @@ pub use background::{Background, ReconstructParams, Source, Statistic, reconstru
 pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
-pub use pipeline::{
-    MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
-};
+pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use splat::{SplatParams, Warped, splat};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.

@@ -18,15 +18,15 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Parser;
+use dynapix_io::StaticWeights;
 use dynapix_io::images::{read_mask, read_prob_png_raw, read_rgbd};
 use dynapix_io::tum::resolve_path;
 use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::dynapix::{DynaPixParams, ProbUpdate, Weighting};
-use dynapix_slam::frame::WeightImage;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
 use dynapix_slam::vocab::Vocabulary;
-use image::{GrayImage, Luma};
+use image::GrayImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -270,21 +270,11 @@ fn slam_pass(
                     read_prob_png_raw(&p)
                         .with_context(|| format!("probability map {}", p.display()))
                         .map(|raw| {
-                            Some(WeightImage::from_fn(raw.width(), raw.height(), |x, y| {
-                                let w = raw.get_pixel(x, y).0[0] as f32 / 1000.0;
-                                Luma([match threshold {
-                                    // Threshold ablation: P > γ ⇒ keypoint dropped (w = 0),
-                                    // everything else unweighted.
-                                    Some(g) => {
-                                        if 1.0 - w > g {
-                                            0.0
-                                        } else {
-                                            1.0
-                                        }
-                                    }
-                                    None => w,
-                                }])
-                            }))
+                            let w = StaticWeights::from_stored(&raw);
+                            Some(match threshold {
+                                Some(g) => w.thresholded(g),
+                                None => w,
+                            })
                         })
                 }
             };
@@ -317,7 +307,7 @@ fn slam_pass(
             depth: &depth,
             weights: w.as_ref(),
             masks: m.as_ref(),
-        });
+        })?;
         let st = slam::frame_status(res.state);
         status.push(StampedStatus { t, status: st });
         pb.set_message(format!(
@@ -361,7 +351,7 @@ fn return_missing(
 type Loaded = (
     f64,
     anyhow::Result<(image::RgbImage, dynapix_io::DepthImage)>,
-    anyhow::Result<Option<WeightImage>>,
+    anyhow::Result<Option<StaticWeights>>,
     anyhow::Result<Option<GrayImage>>,
     bool,
 );

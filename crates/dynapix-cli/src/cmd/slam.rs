@@ -360,7 +360,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             depth: &depth,
             weights: None,
             masks: None,
-        });
+        })?;
         let st = frame_status(res.state);
         status.push(StampedStatus { t, status: st });
         let tr = (res.times.extract + res.times.track) * 1e3;
