@@ -10,6 +10,7 @@
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
 //! - [`pipeline`]: one frame end to end and the ablations;
+//! - [`sequence`]: every frame of a sequence, frames from a [`FrameLoader`], in parallel chunks;
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -23,6 +24,7 @@ pub mod movable;
 pub mod moving;
 pub mod noise;
 pub mod pipeline;
+pub mod sequence;
 pub mod splat;
 
 #[cfg(test)]
@@ -36,6 +38,10 @@ pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
+pub use sequence::{
+    Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion, SequenceStats,
+    StaticBackground,
+};
 pub use splat::{SplatParams, Warped, splat};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.

@@ -15,6 +15,7 @@ use crate::{FloatImage, Mode, MotionError, Variant, check_size};
 
 /// All parameters of the motion probability. `Default` = TUM variant, paper mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct MotionParams {
     /// Reference or paper behaviour.
     pub mode: Mode,
