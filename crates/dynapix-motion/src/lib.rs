@@ -39,8 +39,8 @@ pub use movable::{Movable, MovableParams, movable};
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use sequence::{
-    Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion, SequenceStats,
-    StaticBackground,
+    Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion,
+    SequenceStats, StaticBackground,
 };
 pub use splat::{SplatParams, Warped, splat};
 

@@ -172,7 +172,12 @@ impl SequenceMotion<'_> {
     /// Computes the maps of `frames` (indices into the loader, any order; each is computed
     /// once in the given order of chunks). `map` receives every frame's result, in parallel,
     /// and its output goes to `fold` in the order of `frames`.
-    pub fn run<R, F, G>(&self, frames: &[usize], map: F, mut fold: G) -> Result<SequenceStats, SequenceError>
+    pub fn run<R, F, G>(
+        &self,
+        frames: &[usize],
+        map: F,
+        mut fold: G,
+    ) -> Result<SequenceStats, SequenceError>
     where
         R: Send,
         F: Fn(FrameMotion<'_>) -> Result<R, BoxError> + Sync,
@@ -247,7 +252,10 @@ impl SequenceMotion<'_> {
             let t0 = Instant::now();
             let bgs = missing_bg
                 .par_iter()
-                .map(|&i| self.background(i, &frame_cache, &bg_offsets).map(|b| (i, Arc::new(b))))
+                .map(|&i| {
+                    self.background(i, &frame_cache, &bg_offsets)
+                        .map(|b| (i, Arc::new(b)))
+                })
                 .collect::<Result<Vec<_>, _>>()?;
             bg_cache.extend(bgs);
             stats.compute_seconds += t0.elapsed().as_secs_f64();
@@ -403,10 +411,14 @@ mod tests {
         let mut order = Vec::new();
         let mut maps = HashMap::new();
         let stats = seq
-            .run(&[3, 0, 4, 1, 2], |m| Ok(m.maps.p), |i, p| {
-                order.push(i);
-                maps.insert(i, p);
-            })
+            .run(
+                &[3, 0, 4, 1, 2],
+                |m| Ok(m.maps.p),
+                |i, p| {
+                    order.push(i);
+                    maps.insert(i, p);
+                },
+            )
             .unwrap();
         assert_eq!(order, vec![3, 0, 4, 1, 2]);
         assert_eq!(stats.frames, 5);
@@ -455,10 +467,15 @@ mod tests {
         let e = seq.run(&[7], |_| Ok(()), |_, _| {}).unwrap_err();
         assert!(matches!(e, SequenceError::Input(_)), "{e}");
         let e = seq
-            .run(&[1], |m| Err(format!("disk full at {}", m.index).into()), |_, _: ()| {})
+            .run(
+                &[1],
+                |m| Err(format!("disk full at {}", m.index).into()),
+                |_, _: ()| {},
+            )
             .unwrap_err();
         assert!(
-            matches!(e, SequenceError::Consumer { index: 1, .. }) && e.to_string().contains("disk full at 1"),
+            matches!(e, SequenceError::Consumer { index: 1, .. })
+                && e.to_string().contains("disk full at 1"),
             "{e}"
         );
     }

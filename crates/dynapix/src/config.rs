@@ -270,8 +270,7 @@ impl Config {
                 max_pose_gap: 0.05,
             },
             slam: SlamConfig {
-                params: SystemParams::default()
-                    .with_dynapix(DynaPixParams::new(mode.weighting())),
+                params: SystemParams::default().with_dynapix(DynaPixParams::new(mode.weighting())),
                 vocabulary: VocabularyChoice::Embedded,
                 seed: 0,
             },
@@ -288,24 +287,52 @@ impl Config {
 
     /// Reads a configuration file: JSON when the name ends in `.json`, YAML otherwise.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::Config {
-            path: Some(path.to_path_buf()),
-            message: format!("cannot read: {e}"),
-        })?;
-        let json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
-        let parsed = if json {
-            Self::from_json_str(&text)
-        } else {
-            Self::from_yaml_str(&text)
+        Self::load_with(Some(path.as_ref()), None)
+    }
+
+    /// The configuration of an optional file with an optional mode that replaces the file's
+    /// (its defaults then follow the given mode): what a command line with `--config FILE`
+    /// and `--mode MODE` means.
+    pub fn load_with(path: Option<&Path>, mode: Option<Mode>) -> Result<Self> {
+        let mut v = match path {
+            None => Value::Object(Default::default()),
+            Some(path) => Self::read_value(path)?,
         };
-        parsed.map_err(|e| match e {
-            Error::Config { path: None, message } => Error::Config {
-                path: Some(path.to_path_buf()),
+        if let (Some(m), Value::Object(map)) = (mode, &mut v) {
+            map.insert("mode".into(), Value::String(m.name().into()));
+        }
+        Self::from_value(v).map_err(|e| match (e, path) {
+            (
+                Error::Config {
+                    path: None,
+                    message,
+                },
+                Some(p),
+            ) => Error::Config {
+                path: Some(p.to_path_buf()),
                 message,
             },
-            other => other,
+            (other, _) => other,
         })
+    }
+
+    /// The parsed document of a configuration file (JSON or YAML by extension).
+    fn read_value(path: &Path) -> Result<Value> {
+        let bad = |message: String| Error::Config {
+            path: Some(path.to_path_buf()),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
+            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))
+        } else if text.trim().is_empty() {
+            Ok(Value::Null)
+        } else {
+            serde_saphyr::from_str(&text).map_err(|e| bad(format!("not YAML: {e}")))
+        }
     }
 
     /// Parses a JSON configuration (see [`Config::from_value`]).
@@ -349,19 +376,22 @@ impl Config {
             None => Variant::Tum,
         };
         let base = Self::with_variant(mode, variant);
-        let mut merged = serde_json::to_value(&base)
-            .map_err(|e| Error::config(format!("cannot serialise the defaults: {e}")))?;
+        let mut merged = base.to_json_value();
         check_known_keys(&v, &merged, "")?;
         merge(&mut merged, v);
-        let config: Config = serde_json::from_value(merged)
-            .map_err(|e| Error::config(format!("{e}")))?;
+        let config: Config =
+            serde_json::from_value(merged).map_err(|e| Error::config(format!("{e}")))?;
         config.validate()?;
         Ok(config)
     }
 
-    /// The configuration as pretty JSON (what `run.json` records).
+    /// The configuration as a JSON value (what `run.json` records). Goes through the JSON
+    /// text so `f32` parameters read as written (0.9, not 0.8999999761581421).
     pub fn to_json_value(&self) -> Value {
-        serde_json::to_value(self).unwrap_or(Value::Null)
+        serde_json::to_string(self)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or(Value::Null)
     }
 
     /// Checks the values: nested mode fields agree with [`Config::mode`], counts and ranges
@@ -399,7 +429,9 @@ impl Config {
             return Err(Error::config("sequence.max_frames must be at least 1"));
         }
         if !(self.motion.max_pose_gap.is_finite() && self.motion.max_pose_gap >= 0.0) {
-            return Err(Error::config("motion.max_pose_gap must be a non-negative number"));
+            return Err(Error::config(
+                "motion.max_pose_gap must be a non-negative number",
+            ));
         }
         if !(self.sequence.max_diff.is_finite() && self.sequence.max_diff > 0.0) {
             return Err(Error::config("sequence.max_diff must be positive"));
@@ -526,11 +558,21 @@ mod tests {
         assert_eq!(r.motion.params.splat.mode, dynapix_motion::Mode::Reference);
         assert_eq!(r.slam.params.map.dynapix.update, ProbUpdate::Latest);
         assert_eq!(
-            r.clone().with_method(Method::Orbslam2).system_params().map.dynapix.weighting,
+            r.clone()
+                .with_method(Method::Orbslam2)
+                .system_params()
+                .map
+                .dynapix
+                .weighting,
             Weighting::Off
         );
-        assert_eq!(r.system_params().map.dynapix.weighting, Weighting::Reference);
-        let nm = Config::default().with_method(Method::NoMoving).motion_params();
+        assert_eq!(
+            r.system_params().map.dynapix.weighting,
+            Weighting::Reference
+        );
+        let nm = Config::default()
+            .with_method(Method::NoMoving)
+            .motion_params();
         assert!(nm.use_movable && !nm.use_moving);
     }
 
@@ -555,15 +597,23 @@ mod tests {
         let text = serde_json::to_string_pretty(&c.to_json_value()).unwrap();
         assert_eq!(Config::from_json_str(&text).unwrap(), c);
         // Contradictions, typos and bad values are errors naming the key.
-        let e = Config::from_yaml_str("mode: paper\nmotion:\n  params:\n    splat:\n      mode: reference\n")
+        let e = Config::from_yaml_str(
+            "mode: paper\nmotion:\n  params:\n    splat:\n      mode: reference\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("motion.params.splat.mode"), "{e}");
+        let e = Config::from_yaml_str("slam:\n  parms: {}\n")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("motion.params.splat.mode"), "{e}");
-        let e = Config::from_yaml_str("slam:\n  parms: {}\n").unwrap_err().to_string();
         assert!(e.contains("unknown key slam.parms"), "{e}");
-        let e = Config::from_yaml_str("passes:\n  weighted: 0\n").unwrap_err().to_string();
+        let e = Config::from_yaml_str("passes:\n  weighted: 0\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("passes.weighted"), "{e}");
-        let e = Config::from_yaml_str("mode: fancy\n").unwrap_err().to_string();
+        let e = Config::from_yaml_str("mode: fancy\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("mode"), "{e}");
         let e = Config::from_json_str(r#"{"motion": {"poses": {"file": 3}}}"#).unwrap_err();
         assert!(matches!(e, Error::Config { .. }), "{e}");
@@ -577,7 +627,10 @@ mod tests {
         let p = dir.path().join("c.yaml");
         std::fs::write(&p, "method: threshold\nsequence:\n  max_frames: 20\n").unwrap();
         let c = Config::load(&p).unwrap();
-        assert_eq!((c.method, c.sequence.max_frames), (Method::Threshold, Some(20)));
+        assert_eq!(
+            (c.method, c.sequence.max_frames),
+            (Method::Threshold, Some(20))
+        );
         std::fs::write(&p, "method: [1\n").unwrap();
         let e = Config::load(&p).unwrap_err().to_string();
         assert!(e.contains("c.yaml"), "{e}");

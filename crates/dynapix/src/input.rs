@@ -131,9 +131,8 @@ impl Camera {
     pub fn orb_params(&self) -> Result<OrbParams> {
         let o = &self.settings.orb;
         let fast = |v: u32, key: &str| {
-            u8::try_from(v).map_err(|_| {
-                Error::Input(format!("ORBextractor.{key} {v} does not fit 0..=255"))
-            })
+            u8::try_from(v)
+                .map_err(|_| Error::Input(format!("ORBextractor.{key} {v} does not fit 0..=255")))
         };
         Ok(OrbParams {
             nfeatures: o.n_features,
@@ -189,13 +188,19 @@ fn read_settings(path: &Path) -> Result<(Settings, Vec<String>)> {
 }
 
 fn size_missing(missing: &[String]) -> bool {
-    missing.iter().any(|k| k == "Camera.width" || k == "Camera.height")
+    missing
+        .iter()
+        .any(|k| k == "Camera.width" || k == "Camera.height")
 }
 
 impl Input {
     /// Opens the sequence folder `dir` with the sequence options of `config` and resolves the
     /// camera. The depth factor of the frames is the camera's `DepthMapFactor`.
-    pub fn open(dir: impl AsRef<Path>, config: &SequenceConfig, camera: &CameraChoice) -> Result<Self> {
+    pub fn open(
+        dir: impl AsRef<Path>,
+        config: &SequenceConfig,
+        camera: &CameraChoice,
+    ) -> Result<Self> {
         Self::open_with(dir, config, camera, None)
     }
 
@@ -273,9 +278,8 @@ impl Input {
         let size_from_frames = size_missing(&missing);
         if size_from_frames {
             let first = &sequence.info(0)?.rgb;
-            let (w, h) = image::image_dimensions(first).map_err(|e| {
-                Error::file(first, format!("cannot read the image size: {e}"))
-            })?;
+            let (w, h) = image::image_dimensions(first)
+                .map_err(|e| Error::file(first, format!("cannot read the image size: {e}")))?;
             settings.width = w;
             settings.height = h;
         }

@@ -13,8 +13,8 @@
 use std::path::{Path, PathBuf};
 
 use dynapix_flow::dis::DisFlow;
-use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
 use dynapix_io::MotionProbability;
+use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
 use dynapix_motion::{
     Backgrounds, BoxError, FrameLoader, FrameMotion, MotionParams, RgbdImages, SequenceMotion,
     SequenceStats, StaticBackground,
@@ -322,7 +322,13 @@ impl MapFolder {
     }
 
     /// Writes the record atomically.
-    pub fn write_record(&self, input: &Input, config: &Value, status: &str, results: Value) -> Result<()> {
+    pub fn write_record(
+        &self,
+        input: &Input,
+        config: &Value,
+        status: &str,
+        results: Value,
+    ) -> Result<()> {
         std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
         let doc = json!({
             "sequence": input.sequence.dir,
@@ -415,7 +421,12 @@ pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
 
 /// The maps of `job` in the cache folder `root`: a folder `maps-<key>` is reused when its
 /// record matches the job exactly and every map exists, else (re)computed completely.
-pub fn cached_maps(job: &MapJob<'_>, root: &Path, label: &str, progress: &dyn Progress) -> Result<MapSet> {
+pub fn cached_maps(
+    job: &MapJob<'_>,
+    root: &Path,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<MapSet> {
     let config = job.record();
     let key = Fnv64::of(config.to_string().as_bytes());
     let folder = MapFolder::new(root.join(format!("maps-{key}")));

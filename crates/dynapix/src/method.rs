@@ -114,7 +114,10 @@ impl FromStr for Method {
             .find(|m| m.name().eq_ignore_ascii_case(s.trim()))
             .ok_or_else(|| {
                 let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
-                format!("unknown method {s:?} (expected one of {})", names.join(", "))
+                format!(
+                    "unknown method {s:?} (expected one of {})",
+                    names.join(", ")
+                )
             })
     }
 }

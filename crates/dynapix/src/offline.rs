@@ -294,7 +294,10 @@ impl<'a> OfflineRunner<'a> {
 
     /// The first pass (when needed) and the maps of the first weighted pass, without the
     /// weighted pass itself (what a batch of runs prepares once). `None` for ORB-SLAM2.
-    pub fn prepare(&self, progress: &dyn Progress) -> Result<(Option<FirstPassResult>, Option<MapSet>)> {
+    pub fn prepare(
+        &self,
+        progress: &dyn Progress,
+    ) -> Result<(Option<FirstPassResult>, Option<MapSet>)> {
         if self.config.method.terms().is_none() {
             return Ok((None, None));
         }
@@ -341,9 +344,13 @@ impl<'a> OfflineRunner<'a> {
         let fixed = self.config.motion.poses != PoseSource::Own;
         for k in 1..=n {
             let m = if k == 1 {
-                first_maps.clone().ok_or_else(|| Error::Input("no maps".into()))?
+                first_maps
+                    .clone()
+                    .ok_or_else(|| Error::Input("no maps".into()))?
             } else if fixed || !MapJob::needs_poses(self.input, self.config) {
-                maps.last().cloned().ok_or_else(|| Error::Input("no maps".into()))?
+                maps.last()
+                    .cloned()
+                    .ok_or_else(|| Error::Input("no maps".into()))?
             } else {
                 let prev = as_written(&passes[passes.len() - 1].trajectory)?;
                 let poses = self.poses_for(k, Some(&prev))?;
@@ -358,7 +365,9 @@ impl<'a> OfflineRunner<'a> {
             maps.push(m);
             passes.push(out);
         }
-        let gt_used = maps.iter().try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
+        let gt_used = maps
+            .iter()
+            .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
         record["ground_truth_used_at_run_time"] = json!(gt_used);
         record["first_pass"] = first.as_ref().map_or(Value::Null, |f| f.record.clone());
         record["prob"] = maps[0].record.clone();

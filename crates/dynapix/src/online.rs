@@ -28,8 +28,8 @@ use dynapix_flow::dis::DisFlow;
 use dynapix_geometry::{PinholeCamera, Se3};
 use dynapix_io::{DepthImage, FrameStatus, MotionProbability, StaticWeights};
 use dynapix_motion::{
-    FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, Source,
-    StaticBackground, motion_probability, reconstruct_background,
+    FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, Source, StaticBackground,
+    motion_probability, reconstruct_background,
 };
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System};
@@ -296,7 +296,13 @@ impl OnlineDynaPix {
         };
         let motion_ms = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
-        let res = self.track(frame.t, &images.rgb, &images.depth, weights.as_ref(), frame.mask.as_ref())?;
+        let res = self.track(
+            frame.t,
+            &images.rgb,
+            &images.depth,
+            weights.as_ref(),
+            frame.mask.as_ref(),
+        )?;
         let slam_ms = t1.elapsed().as_secs_f64() * 1e3;
         let status = frame_status(res.state);
         let tracked_cw = res.pose_cw.filter(|_| status == FrameStatus::Tracked);

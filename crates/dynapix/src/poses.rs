@@ -212,7 +212,10 @@ mod tests {
         let p = pose_at(&t, 0.05, 0.06).unwrap();
         assert!((p.translation.x - 0.05).abs() < 1e-12);
         assert!(pose_at(&t, 0.3, 0.05).is_none());
-        assert!(pose_at(&t, 0.24, 0.05).is_some(), "just outside takes the nearest");
+        assert!(
+            pose_at(&t, 0.24, 0.05).is_some(),
+            "just outside takes the nearest"
+        );
         let e = FramePoses::from_trajectory(
             &t,
             &[0.0, 0.5],

@@ -38,18 +38,22 @@ pub fn frame_status(state: TrackingState) -> FrameStatus {
 pub fn load_vocabulary(choice: &VocabularyChoice) -> Result<Option<Vocabulary>> {
     match choice {
         VocabularyChoice::None => Ok(None),
-        VocabularyChoice::Embedded => Vocabulary::embedded_default()
-            .map(Some)
-            .map_err(|source| Error::Vocabulary {
-                path: PathBuf::from("<embedded>"),
-                source,
-            }),
-        VocabularyChoice::File(p) => Vocabulary::load(p)
-            .map(Some)
-            .map_err(|source| Error::Vocabulary {
-                path: p.clone(),
-                source,
-            }),
+        VocabularyChoice::Embedded => {
+            Vocabulary::embedded_default()
+                .map(Some)
+                .map_err(|source| Error::Vocabulary {
+                    path: PathBuf::from("<embedded>"),
+                    source,
+                })
+        }
+        VocabularyChoice::File(p) => {
+            Vocabulary::load(p)
+                .map(Some)
+                .map_err(|source| Error::Vocabulary {
+                    path: p.clone(),
+                    source,
+                })
+        }
     }
 }
 
@@ -75,7 +79,10 @@ pub struct FrameTiming {
     pub status: FrameStatus,
 }
 
-fn status_word<S: serde::Serializer>(s: &FrameStatus, ser: S) -> std::result::Result<S::Ok, S::Error> {
+fn status_word<S: serde::Serializer>(
+    s: &FrameStatus,
+    ser: S,
+) -> std::result::Result<S::Ok, S::Error> {
     ser.serialize_str(s.as_str())
 }
 
@@ -126,7 +133,11 @@ pub struct SlamSession {
 
 impl SlamSession {
     /// A system for `camera` (its ORB settings and intrinsics) with `params`.
-    pub fn new(camera: &Camera, params: SystemParams, vocabulary: Option<Vocabulary>) -> Result<Self> {
+    pub fn new(
+        camera: &Camera,
+        params: SystemParams,
+        vocabulary: Option<Vocabulary>,
+    ) -> Result<Self> {
         let extractor = OrbExtractor::new(camera.orb_params()?)?;
         let mut system = System::new(extractor, camera.rgbd(), params);
         if let Some(v) = vocabulary {
@@ -263,19 +274,16 @@ struct Decoded {
     missing: bool,
 }
 
-fn decode(
-    input: &Input,
-    i: usize,
-    weights: PassWeights<'_>,
-    masks: Option<&Path>,
-) -> Decoded {
+fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path>) -> Decoded {
     let t = input.sequence.frames[i].t;
     let images = input.load_rgbd(i);
     let name = input.map_name(i);
     let mut missing = false;
     let weights = match (weights, &name) {
         (PassWeights::None, _) => Ok(None),
-        (PassWeights::Maps { .. }, None) => Err(Error::Input(format!("frame {i} has no file name"))),
+        (PassWeights::Maps { .. }, None) => {
+            Err(Error::Input(format!("frame {i} has no file name")))
+        }
         (
             PassWeights::Maps {
                 dir,
