@@ -229,7 +229,7 @@ impl OnlineDynaPix {
         let mut out = Vec::new();
         for p in self.window.iter().rev() {
             let back = index - p.index;
-            if back % step == 0 && back <= self.recon.radius {
+            if back.is_multiple_of(step) && back <= self.recon.radius {
                 out.push((&*p.images, p.pose_wc));
             }
         }
