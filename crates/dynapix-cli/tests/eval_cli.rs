@@ -159,17 +159,28 @@ fn runs_folder_gives_per_method_table() {
     );
     let md = std::fs::read_to_string(out_dir.join("table.md")).expect("md");
     assert!(md.contains("A ATE [m]") && md.contains("B ATE [m]"), "{md}");
-    // Identical runs: std 0.
+    // Identical runs: std 0. The motionless floor of fr1_xyz's first 10 s is 0.185 m.
     assert!(
-        md.contains("| fr1 | 0.015 ± 0.000 | 0.015 ± 0.000 |"),
+        md.contains("| fr1 | 0.185 | 0.015 ± 0.000 | 0.015 ± 0.000 |"),
         "{md}"
     );
     let csv = std::fs::read_to_string(out_dir.join("table.csv")).expect("csv");
-    assert!(csv.contains("fr1,A,0.014980,0.000000,,,2,0"), "{csv}");
+    assert!(
+        csv.contains("fr1,A,0.014980,0.000000,,,2,0,0.184938"),
+        "{csv}"
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("table.json")).expect("json"))
             .expect("json");
     assert_eq!(json["methods"][1], "B");
+    let floor = json["floors_m"][0].as_f64().expect("floor");
+    assert!((floor - 0.184938).abs() < 1e-6, "{floor}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("| A | run0.txt | 0.014980 | 0.184938 | 298 |"),
+        "{text}"
+    );
+    assert!(text.contains("Ground truth of fr1: camera poses"), "{text}");
 
     let out = bin()
         .args(["eval", "--json", "--gt"])
@@ -186,6 +197,87 @@ fn runs_folder_gives_per_method_table() {
             .map(Vec::len),
         Some(2)
     );
+    assert_eq!(v["ground_truth"][0]["gt_frame"], "camera");
+    assert_eq!(v["ground_truth"][0]["sequence"], "fr1_xyz");
+    assert!(
+        v["sequences"][0]["methods"][0]["run_floors_m"][1]
+            .as_f64()
+            .is_some()
+    );
+}
+
+fn bonn_dir() -> Option<PathBuf> {
+    let d = repo().join("../shared/data/bonn/rgbd_bonn_crowd");
+    if d.is_dir() {
+        Some(d)
+    } else {
+        eprintln!("skipped: {} not found", d.display());
+        None
+    }
+}
+
+/// A camera that never moves, at every frame of the Bonn window, scores exactly the floor:
+/// 0.074 m against camera-frame ground truth (the marker poses converted), and the output
+/// says which ground truth it used.
+#[test]
+fn bonn_window_floor_and_ground_truth_frame() {
+    let Some(seq) = bonn_dir() else { return };
+    let dir = tempfile::tempdir().expect("tmp");
+    let rgb = std::fs::read_to_string(seq.join("rgb.txt")).expect("rgb.txt");
+    let still: String = rgb
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            format!(
+                "{} 0 0 0 0 0 0 1\n",
+                l.split_whitespace().next().expect("stamp")
+            )
+        })
+        .collect();
+    let est = dir.path().join("still.txt");
+    std::fs::write(&est, still).expect("write");
+    let eval = |frame: &str| {
+        let out = bin()
+            .args(["eval", "--json", "--gt-frame", frame, "--gt"])
+            .arg(seq.join("groundtruth.txt"))
+            .arg("--est")
+            .arg(&est)
+            .output()
+            .expect("runs");
+        json_of(&out)
+    };
+    let cam = eval("camera");
+    assert_eq!(cam["pairs"].as_u64(), Some(150));
+    assert_eq!(cam["gt_frame"], "camera");
+    assert_eq!(cam["gt_file_holds"], "bonn-marker");
+    assert_eq!(cam["gt_converted"], true);
+    let floor = cam["motionless_floor_m"].as_f64().expect("floor");
+    let ate = cam["ate_rmse_m"].as_f64().expect("ate");
+    assert!((floor - 0.074).abs() < 0.001, "{floor}");
+    assert!((ate - floor).abs() < 1e-9, "{ate} vs {floor}");
+    let raw = eval("raw");
+    assert_eq!(
+        (&raw["gt_frame"], &raw["gt_converted"]),
+        (&"raw".into(), &false.into())
+    );
+    // The marker is not the camera: the aligned ground truth sits elsewhere.
+    assert_ne!(
+        raw["alignment_translation_m"],
+        cam["alignment_translation_m"]
+    );
+    let out = bin()
+        .args(["eval", "--gt"])
+        .arg(seq.join("groundtruth.txt"))
+        .arg("--est")
+        .arg(&est)
+        .output()
+        .expect("runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.starts_with("Ground truth: camera poses (Bonn marker poses converted"),
+        "{text}"
+    );
+    assert!(text.contains("motionless floor 0.07"), "{text}");
 }
 
 #[test]

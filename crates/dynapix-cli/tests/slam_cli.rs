@@ -1,6 +1,7 @@
 //! `dynapix slam` end to end on the real TUM fr1_xyz excerpt (300 frames): accuracy (ATE RMSE
 //! after SE(3) alignment ≤ 0.015 m), every frame tracked, identical output on a second run,
-//! and robustness to bad input (black frames, zero depth). Skips with a message when the data
+//! and robustness to bad input (black frames, zero depth); the Bonn window runs without a
+//! camera file (preset `bonn` from its folder name). Skips with a message when the data
 //! is missing. Run in release mode (`cargo test --release`); debug builds are slow.
 
 use std::path::{Path, PathBuf};
@@ -145,4 +146,31 @@ fn fr1_xyz_accuracy_tracking_rate_and_determinism() {
         let y = std::fs::read(b.join(f)).unwrap();
         assert!(x == y, "{f} differs between two runs");
     }
+}
+
+/// A Bonn RGB-D Dynamic folder needs no camera file: its name gives preset `bonn`, the same
+/// camera as `--camera bonn`.
+#[test]
+fn bonn_folder_needs_no_camera_file() {
+    let seq = data_dir().join("bonn/rgbd_bonn_crowd");
+    if !seq.join("rgb.txt").exists() {
+        eprintln!("skipping: {} not found", seq.display());
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let out = run_slam(&seq, &a, &["--max-frames", "10"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = run_slam(&seq, &b, &["--max-frames", "10", "--camera", "bonn"]);
+    assert!(out.status.success());
+    let (x, y) = (
+        std::fs::read(a.join("trajectory.txt")).unwrap(),
+        std::fs::read(b.join("trajectory.txt")).unwrap(),
+    );
+    assert_eq!(read_poses(&a.join("trajectory.txt")).len(), 10);
+    assert_eq!(x, y);
 }

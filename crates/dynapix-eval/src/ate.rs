@@ -3,6 +3,17 @@
 //! translation; Umeyama with scale on request), then take statistics of the per-pair
 //! position errors ‖R·p_est·s + t − p_gt‖. Lost frames are absent from the estimate and do
 //! not contribute (their cost shows in the tracking rate instead).
+//!
+//! Every result carries the **motionless floor**: the ATE RMSE that a camera which never moves
+//! (one constant pose for every pair) scores on the same pairs after the same alignment. An
+//! estimate at or above it is no better than standing still. With rigid (Horn) alignment a
+//! constant estimate is best placed at the ground-truth centroid, so the floor is the RMS
+//! distance of the matched ground-truth positions from their centroid ([`motionless_floor`]).
+//! With Sim(3) alignment the number is the same: `s·R·p + t` maps one point to one point
+//! whatever the scale, so the best placement is again the centroid (Umeyama itself is
+//! undefined for a source without spread, which is why the floor is computed in closed form).
+//! Under Sim(3) the floor is a weaker yardstick, though: an estimate that barely moves can be
+//! scaled up to follow the ground truth, so only scores well below it mean anything.
 
 use crate::associate::{AssocParams, associate};
 use crate::error::{EvalError, Result};
@@ -60,6 +71,28 @@ pub struct AteResult {
     pub alignment: Alignment,
     /// Per-pair details in ground-truth time order.
     pub pairs: Vec<AtePair>,
+    /// ATE RMSE (metres) of a motionless camera on the same pairs after the same kind of
+    /// alignment ([`motionless_floor`]; see the module doc).
+    pub motionless_floor: f64,
+}
+
+/// The ATE RMSE of one constant pose against the ground-truth positions `gt` after optimal
+/// alignment (rigid or with scale: the same value, see the module doc): the RMS distance of
+/// the positions from their centroid. `None` for an empty slice.
+pub fn motionless_floor(gt: &[Point3<f64>]) -> Option<f64> {
+    if gt.is_empty() {
+        return None;
+    }
+    let n = gt.len() as f64;
+    let centroid = gt
+        .iter()
+        .fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords)
+        / n;
+    let sum_sq: f64 = gt
+        .iter()
+        .map(|p| (p.coords - centroid).norm_squared())
+        .sum();
+    Some((sum_sq / n).sqrt())
 }
 
 /// Computes the ATE of `est` against `gt` (both `(timestamp, camera-to-world pose)`).
@@ -113,10 +146,12 @@ pub fn ate(gt: &[(f64, Se3)], est: &[(f64, Se3)], params: &AteParams) -> Result<
         needed,
         max_diff: params.assoc.max_diff,
     })?;
+    let motionless_floor = motionless_floor(&dst).unwrap_or(0.0);
     Ok(AteResult {
         stats,
         alignment,
         pairs,
+        motionless_floor,
     })
 }
 
@@ -173,6 +208,48 @@ mod tests {
         let sim = ate(&gt, &est, &p).expect("ate");
         assert!(sim.stats.rmse < 1e-9);
         assert!((sim.alignment.scale() - 2.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn motionless_floor_by_hand() {
+        // Square of side 2 around (1, 1, 0): every corner is √2 from the centroid.
+        let sq = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+            Point3::new(0.0, 2.0, 0.0),
+            Point3::new(2.0, 2.0, 0.0),
+        ];
+        assert!((motionless_floor(&sq).unwrap() - 2f64.sqrt()).abs() < 1e-15);
+        // 0, 1, 5 on a line: centroid 2, squared distances 4, 1, 9 → √(14/3).
+        let line = [
+            Point3::new(0.0, 0.0, 3.0),
+            Point3::new(1.0, 0.0, 3.0),
+            Point3::new(5.0, 0.0, 3.0),
+        ];
+        assert!((motionless_floor(&line).unwrap() - (14.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        assert_eq!(motionless_floor(&[Point3::new(4.0, 5.0, 6.0)]), Some(0.0));
+        assert_eq!(motionless_floor(&[]), None);
+    }
+
+    #[test]
+    fn a_constant_estimate_scores_exactly_the_floor() {
+        let gt = gt_path(300);
+        let still = se3::exp(&Vector6::new(0.2, 0.1, -0.3, 4.0, 1.0, -2.0));
+        let est: Vec<_> = gt.iter().step_by(2).map(|(t, _)| (*t, still)).collect();
+        let r = ate(&gt, &est, &AteParams::default()).expect("ate");
+        assert!(r.motionless_floor > 0.1);
+        assert!((r.stats.rmse - r.motionless_floor).abs() < 1e-9);
+        // A perfect estimate is far below it, on the same pairs.
+        let good: Vec<_> = gt.iter().step_by(2).copied().collect();
+        let g = ate(&gt, &good, &AteParams::default()).expect("ate");
+        assert!((g.motionless_floor - r.motionless_floor).abs() < 1e-12);
+        // Sim3 cannot spread a single point: the floor is the same number.
+        let p = AteParams {
+            sim3: true,
+            ..AteParams::default()
+        };
+        let s = ate(&gt, &good, &p).expect("ate");
+        assert!((s.motionless_floor - r.motionless_floor).abs() < 1e-12);
     }
 
     #[test]

@@ -1,18 +1,42 @@
 //! The thin file layer of the evaluation: reading trajectories (through
-//! `dynapix_io::trajectory`), reading reference frame stamps (first column of `rgb.txt` or an
+//! `dynapix_io::trajectory`) and ground truth (camera poses, or the raw file), reading reference frame stamps (first column of `rgb.txt` or an
 //! association file), walking a runs folder (one sub-folder per method, one trajectory `.txt`
 //! per run, like the reference `eval.py` RESULT_DIR), and writing tables atomically.
 
-use crate::aggregate::{MethodSummary, PaperTable, RunResult, summarize};
+use crate::aggregate::{MethodSummary, PaperTable, RunResult, summarize_with_floors};
 use crate::error::{EvalError, Result};
 use crate::report::{EvalParams, evaluate};
 use dynapix_geometry::Se3;
+use dynapix_io::{GroundTruthConvention, GtFrame};
 use std::path::{Path, PathBuf};
 
 /// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw`, `#` comments, commas/tabs).
 pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Se3)>> {
     let t = dynapix_io::Trajectory::read_tum(path)?;
     Ok(t.poses.into_iter().map(|p| (p.t, p.pose)).collect())
+}
+
+/// Reads a ground-truth file in `frame` ([`dynapix_io::read_ground_truth`]: the marker poses
+/// of a Bonn `groundtruth.txt` are converted to camera poses for [`GtFrame::Camera`]).
+/// Returns the poses and what the file holds.
+pub fn read_ground_truth(
+    path: &Path,
+    frame: GtFrame,
+) -> Result<(Vec<(f64, Se3)>, GroundTruthConvention)> {
+    let gt = dynapix_io::read_ground_truth(path, frame)?;
+    let poses = gt
+        .trajectory
+        .poses
+        .into_iter()
+        .map(|p| (p.t, p.pose))
+        .collect();
+    Ok((poses, gt.convention))
+}
+
+/// Reads a ground-truth file as camera poses: use this, not [`read_trajectory`], for the
+/// ground truth of a sequence, so that Bonn marker poses are converted.
+pub fn read_camera_ground_truth(path: &Path) -> Result<Vec<(f64, Se3)>> {
+    Ok(read_ground_truth(path, GtFrame::Camera)?.0)
 }
 
 /// Reads reference frame stamps: the first field of every non-empty, non-`#` line
@@ -85,6 +109,18 @@ fn file_name(p: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// A run's result with the motionless floor on its pairs. Serialises as the [`RunResult`]
+/// fields plus `motionless_floor_m` (what `eval.json` of a run should hold).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunEvaluation {
+    /// The run's figures.
+    #[serde(flatten)]
+    pub result: RunResult,
+    /// ATE RMSE of a motionless camera on the run's pairs, metres (`None` when the ATE could
+    /// not be computed).
+    pub motionless_floor_m: Option<f64>,
+}
+
 /// Evaluates one trajectory file into a [`RunResult`]; errors are recorded, not returned.
 pub fn evaluate_run_file(
     gt: &[(f64, Se3)],
@@ -92,6 +128,20 @@ pub fn evaluate_run_file(
     reference: Option<&[f64]>,
     params: &EvalParams,
 ) -> RunResult {
+    evaluate_run(gt, est_path, reference, params).result
+}
+
+/// Like [`evaluate_run_file`], with the motionless floor of the run.
+pub fn evaluate_run(
+    gt: &[(f64, Se3)],
+    est_path: &Path,
+    reference: Option<&[f64]>,
+    params: &EvalParams,
+) -> RunEvaluation {
+    let no_floor = |result| RunEvaluation {
+        result,
+        motionless_floor_m: None,
+    };
     let name = file_name(est_path);
     let failed = |e: EvalError, tr: Option<(f64, f64)>| RunResult {
         name: name.clone(),
@@ -103,16 +153,19 @@ pub fn evaluate_run_file(
     };
     let est = match read_trajectory(est_path) {
         Ok(e) => e,
-        Err(e) => return failed(e, None),
+        Err(e) => return no_floor(failed(e, None)),
     };
     match evaluate(gt, &est, reference, params) {
-        Ok(ev) => RunResult {
-            name: name.clone(),
-            ate_rmse_m: Some(ev.ate.stats.rmse),
-            pairs: ev.ate.stats.count,
-            tracking_rate: ev.tracking.map(|t| t.tracking_rate),
-            missing_time_s: ev.tracking.map(|t| t.missing_time_s),
-            error: None,
+        Ok(ev) => RunEvaluation {
+            result: RunResult {
+                name: name.clone(),
+                ate_rmse_m: Some(ev.ate.stats.rmse),
+                pairs: ev.ate.stats.count,
+                tracking_rate: ev.tracking.map(|t| t.tracking_rate),
+                missing_time_s: ev.tracking.map(|t| t.missing_time_s),
+                error: None,
+            },
+            motionless_floor_m: Some(ev.motionless_floor()),
         },
         Err(e) => {
             // ATE failed (e.g. no overlapping stamps): the tracking rate is still meaningful.
@@ -126,7 +179,7 @@ pub fn evaluate_run_file(
                     .ok()
                     .map(|t| (t.tracking_rate, t.missing_time_s))
             });
-            failed(e, tr)
+            no_floor(failed(e, tr))
         }
     }
 }
@@ -154,14 +207,15 @@ pub fn evaluate_runs_dir(
         if files.is_empty() {
             continue;
         }
-        let runs = files
+        let (runs, floors) = files
             .iter()
             .map(|f| {
                 progress(f);
-                evaluate_run_file(gt, f, reference, params)
+                let r = evaluate_run(gt, f, reference, params);
+                (r.result, r.motionless_floor_m)
             })
-            .collect();
-        out.push(summarize(&name, runs));
+            .unzip();
+        out.push(summarize_with_floors(&name, runs, floors));
     }
     if out.is_empty() {
         return Err(EvalError::Layout {
@@ -195,6 +249,41 @@ pub fn write_table(dir: &Path, table: &PaperTable) -> Result<Vec<PathBuf>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_reports_its_floor_and_serialises_flat() {
+        let dir = tempfile::tempdir().expect("tmp");
+        // Ground truth along x at 1 m/s for 2 s; a motionless estimate at 10 Hz.
+        let gt: Vec<(f64, Se3)> = (0..=200)
+            .map(|k| {
+                let t = k as f64 * 0.01;
+                (t, Se3::translation(t, 0.0, 0.0))
+            })
+            .collect();
+        let est = dir.path().join("still.txt");
+        let lines: String = (0..=20)
+            .map(|k| format!("{:.6} 0 0 0 0 0 0 1\n", k as f64 * 0.1))
+            .collect();
+        std::fs::write(&est, lines).expect("write");
+        let r = evaluate_run(&gt, &est, None, &EvalParams::default());
+        // Positions 0, 0.1, …, 2.0: RMS distance from 1.0 is √(Σ(0.1k − 1)²/21) = √0.3667.
+        let floor = r.motionless_floor_m.expect("floor");
+        assert!(
+            (floor - (0.11f64 * 10.0 / 3.0).sqrt()).abs() < 1e-9,
+            "{floor}"
+        );
+        assert!((r.result.ate_rmse_m.expect("ate") - floor).abs() < 1e-9);
+        let v = serde_json::to_value(&r).expect("json");
+        assert_eq!(v["pairs"], 21);
+        assert!(v["motionless_floor_m"].as_f64().is_some() && v.get("result").is_none());
+        let missing = evaluate_run(
+            &gt,
+            &dir.path().join("none.txt"),
+            None,
+            &EvalParams::default(),
+        );
+        assert!(missing.motionless_floor_m.is_none() && missing.result.error.is_some());
+    }
 
     #[test]
     fn reference_stamps_from_association_and_bad_line() {

@@ -1,6 +1,7 @@
 //! Trajectory evaluation for dynapix (spec §4): timestamp association like the TUM tools,
 //! ATE after Horn (or Umeyama-with-scale) alignment, RPE with a time or frame delta, the
-//! tracking rate TR with the reference missing-interval rule, ATR = mean ATE / mean TR,
+//! tracking rate TR with the reference missing-interval rule, ATR = mean ATE / mean TR, the
+//! motionless floor (the ATE of a camera that never moves, on the same pairs),
 //! multi-run / multi-sequence tables (Markdown, CSV, JSON) and plots (SVG, PNG).
 //!
 //! The algorithms ([`associate`], [`ate`], [`rpe`], [`tracking`], [`aggregate`], [`report`])
@@ -18,9 +19,11 @@ pub mod rpe;
 pub mod stats;
 pub mod tracking;
 
-pub use aggregate::{MethodSummary, PaperTable, RunResult, SequenceSummary, paper_table};
+pub use aggregate::{
+    MethodSummary, PaperTable, RunResult, SequenceSummary, paper_table, summarize_with_floors,
+};
 pub use associate::{AssocParams, associate};
-pub use ate::{AteParams, AteResult, ate};
+pub use ate::{AteParams, AteResult, ate, motionless_floor};
 pub use error::{EvalError, Result};
 pub use report::{EvalParams, Evaluation, Report, evaluate};
 pub use rpe::{RpeDelta, RpeParams, RpeResult, rpe};

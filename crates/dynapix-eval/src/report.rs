@@ -36,7 +36,8 @@ pub struct Evaluation {
 }
 
 /// Flat, serialisable summary of an [`Evaluation`] (the `--json` contract: at least
-/// `ate_rmse_m` and `pairs`, plus `tracking_rate` and `missing_time_s` with a reference).
+/// `ate_rmse_m`, `pairs` and `motionless_floor_m`, plus `tracking_rate` and `missing_time_s`
+/// with a reference).
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
     /// ATE RMSE, metres.
@@ -53,6 +54,9 @@ pub struct Report {
     pub ate_max_m: f64,
     /// Matched pose pairs.
     pub pairs: usize,
+    /// ATE RMSE of a motionless camera on the same pairs after the same alignment, metres
+    /// ([`crate::ate::motionless_floor`]).
+    pub motionless_floor_m: f64,
     /// `"se3"` or `"sim3"`.
     pub alignment: &'static str,
     /// Alignment scale (1 for SE3).
@@ -88,6 +92,11 @@ pub struct Report {
 }
 
 impl Evaluation {
+    /// ATE RMSE a motionless camera would score on the same pairs (metres).
+    pub fn motionless_floor(&self) -> f64 {
+        self.ate.motionless_floor
+    }
+
     /// The flat report.
     pub fn report(&self) -> Report {
         let s = &self.ate.stats;
@@ -103,6 +112,7 @@ impl Evaluation {
             ate_min_m: s.min,
             ate_max_m: s.max,
             pairs: s.count,
+            motionless_floor_m: self.ate.motionless_floor,
             alignment: if self.sim3 { "sim3" } else { "se3" },
             alignment_scale: scale,
             alignment_rotation_xyzw: [q.i, q.j, q.k, q.w],

@@ -177,10 +177,153 @@ impl PinholeCamera {
     }
 }
 
+/// How far beyond the outermost ray of the image (relative radius) points are still
+/// distorted by [`PixelRays::project`]: enough for points that land just outside the frame,
+/// well short of where a polynomial lens model folds back onto the image.
+const PROJECT_RADIUS_MARGIN: f64 = 1.1;
+
+/// The undistorted viewing ray of every pixel of a camera's raw image, computed once so that
+/// per-pixel loops (splatting, background reconstruction) back-project with a table look-up
+/// instead of an iterative undistortion.
+///
+/// Ray `(x_n, y_n)` of pixel `(u, v)` is the normalised coordinate (X/Z, Y/Z) of the points
+/// the pixel sees: `undistort_point((u, v))` in normalised units. A pixel whose undistortion
+/// does not converge gets no ray.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PixelRays {
+    camera: PinholeCamera,
+    /// Row-major normalised rays, NaN where the undistortion failed.
+    rays: Vec<[f64; 2]>,
+    /// Largest squared normalised radius [`PixelRays::project`] distorts.
+    max_r2: f64,
+}
+
+impl PixelRays {
+    /// Computes the rays of every pixel of `camera` (`width × height` undistortions).
+    pub fn new(camera: &PinholeCamera) -> Self {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let mut rays = Vec::with_capacity(w * h);
+        let mut image_r2 = 0.0f64;
+        for y in 0..h {
+            for x in 0..w {
+                let ray = camera
+                    .try_undistort_point(&Point2::new(x as f64, y as f64))
+                    .map_or([f64::NAN; 2], |p| {
+                        [(p.x - camera.cx) / camera.fx, (p.y - camera.cy) / camera.fy]
+                    });
+                let r2 = ray[0] * ray[0] + ray[1] * ray[1];
+                if r2.is_finite() {
+                    image_r2 = image_r2.max(r2);
+                }
+                rays.push(ray);
+            }
+        }
+        let max_r2 = camera.monotonic_r2(image_r2 * PROJECT_RADIUS_MARGIN * PROJECT_RADIUS_MARGIN);
+        Self {
+            camera: camera.clone(),
+            rays,
+            max_r2,
+        }
+    }
+
+    /// The camera the rays belong to.
+    pub fn camera(&self) -> &PinholeCamera {
+        &self.camera
+    }
+
+    /// The normalised ray of pixel `(x, y)`; `None` outside the image or where the
+    /// undistortion did not converge.
+    pub fn ray(&self, x: u32, y: u32) -> Option<[f64; 2]> {
+        if x >= self.camera.width || y >= self.camera.height {
+            return None;
+        }
+        let r = self.rays[y as usize * self.camera.width as usize + x as usize];
+        r[0].is_finite().then_some(r)
+    }
+
+    /// The rays of image row `y` (NaN where the undistortion failed); empty outside the image.
+    pub fn row(&self, y: u32) -> &[[f64; 2]] {
+        if y >= self.camera.height {
+            return &[];
+        }
+        let w = self.camera.width as usize;
+        &self.rays[y as usize * w..(y as usize + 1) * w]
+    }
+
+    /// Largest squared normalised radius that [`PixelRays::project`] accepts: 10 % beyond the
+    /// image's outermost ray, or less where the radial distortion stops being monotonic.
+    pub fn max_r2(&self) -> f64 {
+        self.max_r2
+    }
+
+    /// Projects a camera-frame point through the distortion to a raw pixel, like
+    /// [`PinholeCamera::project_distorted`], but `None` for points whose normalised radius
+    /// exceeds [`PixelRays::max_r2`], which the polynomial model could fold back into view.
+    pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
+        if p.z <= 0.0 {
+            return None;
+        }
+        let x = Vector2::new(p.x / p.z, p.y / p.z);
+        // NaN radii fail the comparison and are refused as well.
+        let inside = x.norm_squared() <= self.max_r2;
+        if !inside {
+            return None;
+        }
+        let d = self.camera.distort_normalized(&x);
+        Some(self.camera.to_pixel(&d))
+    }
+}
+
+impl PinholeCamera {
+    /// The largest squared radius up to `limit` over which the radial part of the distortion,
+    /// `r·(1 + k1 r² + k2 r⁴ + k3 r⁶)`, keeps increasing (sampled finely).
+    fn monotonic_r2(&self, limit: f64) -> f64 {
+        let [k1, k2, _, _, k3] = self.dist;
+        let slope = |r2: f64| 1.0 + r2 * (3.0 * k1 + r2 * (5.0 * k2 + r2 * 7.0 * k3));
+        const STEPS: usize = 1000;
+        for i in 1..=STEPS {
+            let r2 = limit * i as f64 / STEPS as f64;
+            if slope(r2) <= 0.0 {
+                return limit * (i - 1) as f64 / STEPS as f64;
+            }
+        }
+        limit
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn pixel_rays_are_the_undistorted_pixels() {
+        let c = fr1();
+        let rays = PixelRays::new(&c);
+        assert_eq!(rays.camera(), &c);
+        for (x, y) in [(0u32, 0u32), (639, 479), (320, 240), (17, 400)] {
+            let r = rays.ray(x, y).expect("converges");
+            let und = c.undistort_point(&Point2::new(x as f64, y as f64));
+            assert!((r[0] - (und.x - c.cx) / c.fx).abs() < 1e-15);
+            assert!((r[1] - (und.y - c.cy) / c.fy).abs() < 1e-15);
+            assert_eq!(rays.row(y)[x as usize], r);
+            // Back-project at any depth and project again: the same raw pixel.
+            let p = Point3::new(r[0] * 2.5, r[1] * 2.5, 2.5);
+            let back = rays.project(&p).expect("inside");
+            assert!((back - Point2::new(x as f64, y as f64)).norm() < 1e-9);
+        }
+        assert!(rays.ray(640, 0).is_none() && rays.row(480).is_empty());
+        // Far outside the field of view the polynomial would fold back: refused.
+        assert!(rays.project(&Point3::new(3.0, 0.0, 1.0)).is_none());
+        assert!(rays.project(&Point3::new(0.0, 0.0, -1.0)).is_none());
+        // A lens that folds inside the margin is cut where its slope vanishes.
+        let mut fold = PinholeCamera::new(100, 100, 50.0, 50.0, 49.5, 49.5);
+        fold.dist = [0.0, -0.5, 0.0, 0.0, 0.0];
+        let r = PixelRays::new(&fold);
+        // The slope 1 − 5·0.5·r⁴ vanishes at r² = √0.4 ≈ 0.632; the image's rays reach about
+        // that far, so the 10 % margin alone would go past the fold.
+        assert!((r.max_r2() - 0.4f64.sqrt()).abs() < 2e-3, "{}", r.max_r2());
+    }
 
     /// TUM fr1 camera (strong distortion), from the dataset README.
     fn fr1() -> PinholeCamera {

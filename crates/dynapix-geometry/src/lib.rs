@@ -10,5 +10,5 @@ pub mod se3;
 pub mod sim3;
 pub mod triangulate;
 
-pub use camera::PinholeCamera;
+pub use camera::{PinholeCamera, PixelRays};
 pub use se3::Se3;

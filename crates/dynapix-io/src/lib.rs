@@ -9,8 +9,12 @@
 //!   4-column association files.
 //! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
 //!   lossless PFM).
-//! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade`, the camera of a
-//!   sequence folder.
+//! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade bonn`, the camera
+//!   of a sequence folder.
+//! - [`datasets`]: which public dataset a folder is (TUM `rgbd_dataset_freiburgN_*`, Bonn
+//!   `rgbd_bonn_*`), which decides its camera preset and ground-truth convention.
+//! - [`ground_truth`]: ground truth as camera poses ([`camera_trajectory`]; the Bonn marker
+//!   poses converted), or the raw file ([`GtFrame`]).
 //! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`],
 //!   and [`SequenceWriter`] for the DynaPix layout.
 //! - [`weights`]: [`MotionProbability`] P and [`StaticWeights`] w = 1 − P as distinct types,
@@ -20,7 +24,9 @@
 #![warn(missing_docs)]
 
 pub mod atomic;
+pub mod datasets;
 pub mod error;
+pub mod ground_truth;
 pub mod images;
 pub mod sequence;
 pub mod settings;
@@ -30,7 +36,11 @@ pub mod tum;
 pub mod weights;
 
 pub use atomic::write_atomic;
+pub use datasets::Dataset;
 pub use error::{IoError, Result};
+pub use ground_truth::{
+    GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
+};
 pub use images::{DepthImage, Gray16Image, ProbMap};
 pub use sequence::{
     FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions, SequenceWriter,

@@ -14,6 +14,9 @@
 //! This is the one reader of a sequence folder: every command and the `dynapix` library see the
 //! same frames, and [`Sequence::frame_list`] says where they came from (recorded in outputs).
 //!
+//! Ground truth is held as camera-to-world poses: the marker poses of a Bonn RGB-D Dynamic
+//! folder (`rgbd_bonn_*`) are converted on opening ([`crate::ground_truth`]).
+//!
 //! Opening reads only the text files and checks which optional files exist; images are loaded
 //! per frame by [`Sequence::load_frame`], which takes `&self` and holds no lock, so frames can
 //! be loaded from rayon in parallel.
@@ -24,6 +27,7 @@ use dynapix_geometry::Se3;
 use image::{GrayImage, RgbImage};
 
 use crate::error::{IoError, Result};
+use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame};
 use crate::images::{self, DepthImage, ProbMap};
 use crate::settings::{SEQUENCE_SETTINGS_FILE, Settings};
 use crate::trajectory::{DEFAULT_MAX_GAP, Trajectory};
@@ -182,11 +186,15 @@ pub struct Sequence {
     pub frames: Vec<FrameInfo>,
     /// Where the frame list came from.
     pub frame_list: FrameList,
-    /// `groundtruth.txt`, when present.
+    /// `groundtruth.txt`, when present, as camera-to-world poses (converted from the file
+    /// when [`Self::gt_convention`] says it holds marker poses).
     pub groundtruth: Option<Trajectory>,
+    /// What the poses of `groundtruth.txt` are in the file (Bonn: marker body).
+    pub gt_convention: GroundTruthConvention,
     /// Camera settings from `camera.yaml` (read leniently: missing keys take the TUM values,
-    /// see [`Sequence::settings_missing_keys`]), the folder name (`rgbd_dataset_freiburgN_*`)
-    /// or the GRADE layout; `None` when they cannot be told (see [`Sequence::settings`]).
+    /// see [`Sequence::settings_missing_keys`]), the folder's dataset
+    /// (`rgbd_dataset_freiburgN_*`, `rgbd_bonn_*`) or the GRADE layout; `None` when they
+    /// cannot be told (see [`Sequence::settings`]).
     pub settings: Option<Settings>,
     /// Keys missing from the folder's `camera.yaml` (they took the TUM values).
     pub settings_missing_keys: Vec<&'static str>,
@@ -279,9 +287,10 @@ impl Sequence {
                 }
             })
             .collect();
-        let gt_path = dir.join("groundtruth.txt");
+        let gt_path = dir.join(GROUNDTRUTH_FILE);
+        let gt_convention = GroundTruthConvention::of_file(&gt_path);
         let groundtruth = if gt_path.is_file() {
-            Some(Trajectory::read_tum(&gt_path)?)
+            Some(gt_convention.trajectory_in(Trajectory::read_tum(&gt_path)?, GtFrame::Camera))
         } else {
             None
         };
@@ -315,6 +324,7 @@ impl Sequence {
             frames,
             frame_list,
             groundtruth,
+            gt_convention,
             settings,
             settings_missing_keys,
             depth_factor,
@@ -442,7 +452,8 @@ impl Sequence {
         }
     }
 
-    /// Ground-truth pose (camera-to-world) at time `t`, SLERP-interpolated.
+    /// Ground-truth camera pose (camera-to-world; Bonn marker poses converted) at time `t`,
+    /// SLERP-interpolated between the two surrounding converted poses.
     pub fn gt_pose_at(&self, t: f64) -> Option<Se3> {
         self.groundtruth.as_ref()?.interpolate(t, self.gt_max_gap)
     }
@@ -920,6 +931,88 @@ mod tests {
             pose.rotation.angle_to(&a.pose.rotation)
                 <= a.pose.rotation.angle_to(&b.pose.rotation) + 1e-12
         );
+    }
+    /// Median |z predicted − z measured| of the depth of frame `a` reprojected into frame `b`
+    /// (every 4th pixel, distortion-aware), with poses `pa`, `pb` (camera-to-world).
+    fn reprojection_residual(
+        a: &FrameData,
+        b: &FrameData,
+        pa: &Se3,
+        pb: &Se3,
+        cam: &dynapix_geometry::PinholeCamera,
+    ) -> f64 {
+        use nalgebra::Point2;
+        let t_ba = pb.inverse() * pa;
+        let mut res = Vec::new();
+        for y in (0..cam.height).step_by(4) {
+            for x in (0..cam.width).step_by(4) {
+                let z = a.depth.get_pixel(x, y)[0] as f64;
+                if z <= 0.0 {
+                    continue;
+                }
+                let ray = cam.undistort_point(&Point2::new(x as f64, y as f64));
+                let q = t_ba * cam.unproject(&ray, z);
+                let Some(uv) = cam.project_distorted(&q) else {
+                    continue;
+                };
+                let (u, v) = (uv.x.round(), uv.y.round());
+                if u < 0.0 || v < 0.0 || u >= cam.width as f64 || v >= cam.height as f64 {
+                    continue;
+                }
+                let zb = b.depth.get_pixel(u as u32, v as u32)[0] as f64;
+                if zb > 0.0 {
+                    res.push((q.z - zb).abs());
+                }
+            }
+        }
+        assert!(res.len() > 5000, "{} pixels", res.len());
+        let mid = res.len() / 2;
+        *res.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
+    /// The Bonn window opens with its camera preset and camera-frame ground truth: depth
+    /// reprojected between frames with the converted poses lands on the measured depth, with
+    /// the raw (marker) poses it does not.
+    #[test]
+    fn real_bonn_window_has_camera_ground_truth() {
+        let Some(d) = data_dir() else { return };
+        let dir = d.join("bonn/rgbd_bonn_crowd");
+        let seq = Sequence::open(&dir).unwrap();
+        assert_eq!(seq.layout, Layout::Tum);
+        assert_eq!(seq.settings().unwrap(), &Settings::bonn());
+        assert_eq!(seq.gt_convention, GroundTruthConvention::BonnMarker);
+        assert_eq!(seq.len(), 150);
+        let raw = Trajectory::read_tum(dir.join(GROUNDTRUTH_FILE)).unwrap();
+        assert_eq!(seq.groundtruth.as_ref().unwrap().len(), raw.len());
+        let cam = seq.settings().unwrap().camera();
+        let mut converted = Vec::new();
+        let mut marker = Vec::new();
+        // Frames 10 apart (a third of a second), every 20 frames through the window.
+        for (i, j) in (0..150 - 10).step_by(20).map(|i| (i, i + 10)) {
+            let (a, b) = (seq.load_frame(i).unwrap(), seq.load_frame(j).unwrap());
+            let (pa, pb) = (a.gt_pose.unwrap(), b.gt_pose.unwrap());
+            converted.push(reprojection_residual(&a, &b, &pa, &pb, &cam));
+            let (ra, rb) = (
+                raw.interpolate(a.t, seq.gt_max_gap).unwrap(),
+                raw.interpolate(b.t, seq.gt_max_gap).unwrap(),
+            );
+            marker.push(reprojection_residual(&a, &b, &ra, &rb, &cam));
+        }
+        eprintln!("median depth residual, converted {converted:.3?} m, raw {marker:.3?} m");
+        // People cross the view, so one pair may match badly either way: judge the median
+        // over the pairs, and the pairs one by one by majority.
+        let better = converted.iter().zip(&marker).filter(|(c, m)| c < m).count();
+        assert!(
+            better + 1 >= converted.len(),
+            "{better} of {}",
+            converted.len()
+        );
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let (c, m) = (median(&mut converted), median(&mut marker));
+        assert!(c < 0.08 && m > 2.0 * c, "converted {c}, raw {m}");
     }
 }
 

@@ -1,5 +1,6 @@
 //! ORB-SLAM2 settings files (`TUM1.yaml`, `TUM3.yaml`, `GRADE.yaml`, a sequence's
-//! `camera.yaml`; spec §2.8, §5.1, §5.2) and the built-in camera presets `tum1 tum2 tum3 grade`.
+//! `camera.yaml`; spec §2.8, §5.1, §5.2) and the built-in camera presets `tum1 tum2 tum3 grade
+//! bonn`.
 //!
 //! The files are OpenCV YAML: a `%YAML:1.0` first line and flat keys with dots
 //! (`Camera.fx: 535.4`). They are parsed with `serde-saphyr` after two OpenCV tolerances are
@@ -18,12 +19,13 @@ use dynapix_geometry::PinholeCamera;
 use serde::Deserialize;
 
 use crate::atomic::write_atomic;
+use crate::datasets::Dataset;
 use crate::error::{IoError, Result};
 use crate::images::Gray16Image;
 use crate::text::read_text;
 
 /// Names of the built-in presets, for CLI help and error messages.
-pub const PRESET_NAMES: [&str; 4] = ["tum1", "tum2", "tum3", "grade"];
+pub const PRESET_NAMES: [&str; 5] = ["tum1", "tum2", "tum3", "grade", "bonn"];
 
 /// File name of the per-sequence settings that every command uses when present.
 pub const SEQUENCE_SETTINGS_FILE: &str = "camera.yaml";
@@ -575,6 +577,19 @@ impl Settings {
         s
     }
 
+    /// The Kinect of the Bonn RGB-D Dynamic Dataset (intrinsics and radial-tangential
+    /// distortion as the dataset publishes them; depth factor, `bf` and `ThDepth` as TUM).
+    pub fn bonn() -> Self {
+        Self::tum_common(
+            542.822841,
+            542.576870,
+            315.593520,
+            237.756098,
+            [0.039903, -0.099343, -0.000730, -0.000144, 0.0],
+            5000.0,
+        )
+    }
+
     /// The preset called `name` (one of [`PRESET_NAMES`], case-insensitive).
     pub fn preset(name: &str) -> Option<Self> {
         match name.to_ascii_lowercase().as_str() {
@@ -582,46 +597,42 @@ impl Settings {
             "tum2" => Some(Self::tum2()),
             "tum3" => Some(Self::tum3()),
             "grade" => Some(Self::grade()),
+            "bonn" => Some(Self::bonn()),
             _ => None,
         }
     }
 
-    /// The preset implied by a TUM folder name `rgbd_dataset_freiburgN_*` (N = 1, 2, 3).
+    /// The preset implied by a dataset folder name: `tumN` for `rgbd_dataset_freiburgN_*`
+    /// (N = 1, 2, 3), `bonn` for `rgbd_bonn_*` ([`Dataset::from_folder_name`]).
     pub fn preset_for_folder_name(name: &str) -> Option<Self> {
-        let rest = name.strip_prefix("rgbd_dataset_freiburg")?;
-        let (n, tail) = rest.split_at_checked(1)?;
-        if !tail.starts_with('_') {
-            return None;
-        }
-        Self::preset(&format!("tum{n}"))
+        Self::preset(Dataset::from_folder_name(name)?.preset_name())
     }
 
-    /// The settings of a sequence folder: its `camera.yaml` if present, else the preset
-    /// implied by a `rgbd_dataset_freiburgN_*` folder name, else an error saying that the
-    /// camera cannot be told (the caller should then ask for `--camera`/`--settings`).
+    /// The settings of a sequence folder: its `camera.yaml` if present, else the preset of
+    /// its dataset ([`Dataset::of_dir`]: a `rgbd_dataset_freiburgN_*` or `rgbd_bonn_*` folder,
+    /// or a folder linking to one), else an error saying that the camera cannot be told (the
+    /// caller should then ask for `--camera`/`--settings`).
     pub fn for_sequence_dir(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref();
         let file = dir.join(SEQUENCE_SETTINGS_FILE);
         if file.is_file() {
             return Self::read(&file);
         }
-        // `.` or `seq/..` have no useful name: look at the resolved folder.
-        let resolved = std::fs::canonicalize(dir).map_err(|e| IoError::io(dir, e))?;
-        let name = resolved
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or_default();
-        Self::preset_for_folder_name(name).ok_or_else(|| {
-            IoError::invalid(
-                dir,
-                format!(
-                    "cannot tell the camera: no {SEQUENCE_SETTINGS_FILE} in the folder and its \
-                     name is not rgbd_dataset_freiburgN_*; give a settings file or a preset \
-                     ({})",
-                    PRESET_NAMES.join(", ")
-                ),
-            )
-        })
+        // `.` or `seq/..` have no useful name: the dataset is told from the resolved folder.
+        std::fs::canonicalize(dir).map_err(|e| IoError::io(dir, e))?;
+        Dataset::of_dir(dir)
+            .and_then(|d| Self::preset(d.preset_name()))
+            .ok_or_else(|| {
+                IoError::invalid(
+                    dir,
+                    format!(
+                        "cannot tell the camera: no {SEQUENCE_SETTINGS_FILE} in the folder and \
+                         its name is neither rgbd_dataset_freiburgN_* nor rgbd_bonn_*; give a \
+                         settings file or a preset ({})",
+                        PRESET_NAMES.join(", ")
+                    ),
+                )
+            })
     }
 
     /// A warning when `DepthMapFactor` looks wrong for a raw depth image: the median valid
@@ -841,12 +852,33 @@ mod tests {
             e.contains("my_sequence") && e.contains("cannot tell the camera"),
             "{e}"
         );
+        let bonn = root.path().join("rgbd_bonn_crowd");
+        std::fs::create_dir(&bonn).unwrap();
+        let b = Settings::for_sequence_dir(&bonn).unwrap();
+        assert_eq!(b, Settings::bonn());
+        assert_eq!(
+            (b.fx, b.fy, b.cx, b.cy),
+            (542.822841, 542.576870, 315.593520, 237.756098)
+        );
+        assert_eq!(b.dist, [0.039903, -0.099343, -0.000730, -0.000144, 0.0]);
+        assert_eq!((b.width, b.height, b.depth_map_factor), (640, 480, 5000.0));
+        assert_eq!((b.bf, b.th_depth, b.fps), (40.0, 40.0, 30.0));
+        assert!(b.camera().is_distorted());
+        assert_eq!(Settings::preset("BONN"), Some(Settings::bonn()));
+        assert!(Settings::preset_for_folder_name("rgbd_bonn_").is_none());
         assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg4_x").is_none());
         assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg1xyz").is_none());
         let real = PathBuf::from(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
         ));
+        let real_bonn = real.join("../../bonn/rgbd_bonn_crowd");
+        if real_bonn.is_dir() {
+            assert_eq!(
+                Settings::for_sequence_dir(&real_bonn).unwrap(),
+                Settings::bonn()
+            );
+        }
         if real.is_dir() {
             assert_eq!(Settings::for_sequence_dir(&real).unwrap(), Settings::tum1());
         } else {

@@ -251,7 +251,9 @@ pub fn reconstruct_background(
 mod tests {
     use super::*;
     use crate::metrics::psnr_masked;
-    use crate::testutil::{Scene, small_camera};
+    use crate::testutil::{Scene, small_camera, small_distorted_camera};
+    use dynapix_geometry::se3;
+    use nalgebra::Vector6;
 
     /// Every frame but `c` as a source, posed relative to frame `c` (`frames`: image, depth,
     /// `T_wc`).
@@ -311,6 +313,49 @@ mod tests {
             }
         }
         assert!(ok * 10 > n * 9, "{ok} of {n}");
+    }
+
+    #[test]
+    fn a_distorted_camera_is_reconstructed_through_its_lens() {
+        let cam = small_distorted_camera();
+        let mut ideal = cam.clone();
+        ideal.dist = [0.0; 5];
+        let scene = Scene::default();
+        // The camera slides and turns one way while the panel crosses the view; only later
+        // frames are sources, so the pinhole model's errors do not cancel in the median.
+        let frames: Vec<_> = (0..6)
+            .map(|k| {
+                let s = k as f64;
+                let t = se3::exp(&Vector6::new(0.0, 0.02 * s, 0.0, 0.04 * s, 0.0, 0.0));
+                let (rgb, d) = scene.render(&cam, &t, true, 0.1 * s);
+                (rgb, d, t)
+            })
+            .collect();
+        let sources = neighbour_sources(&frames, 0);
+        let (truth, _) = scene.render(&cam, &frames[0].2, false, 0.0);
+        let mover: Vec<bool> = frames[0].1.iter().map(|z| (z - 1.5).abs() < 1e-3).collect();
+        let errors = |cam: &PinholeCamera| {
+            let p = ReconstructParams::default();
+            let bg = reconstruct_background(&frames[0].0, &frames[0].1, &sources, cam, &p, None)
+                .unwrap();
+            let (mut all, mut behind) = (0.0, 0.0);
+            for ((a, b), &m) in bg.image.pixels().zip(truth.pixels()).zip(&mover) {
+                let e = (a.0[1] as f64 - b.0[1] as f64).abs();
+                all += e;
+                if m {
+                    behind += e;
+                }
+            }
+            let n_mover = mover.iter().filter(|&&m| m).count() as f64;
+            (all / mover.len() as f64, behind / n_mover)
+        };
+        let (lens, pinhole) = (errors(&cam), errors(&ideal));
+        // Mean absolute error over the image and behind the mover: (1.43, 1.00) through the
+        // lens against (2.74, 1.46) with the pinhole model when this test was written.
+        assert!(
+            lens.0 < 0.7 * pinhole.0 && lens.1 < pinhole.1 && lens.1 < 1.5,
+            "lens {lens:?}, pinhole {pinhole:?}"
+        );
     }
 
     #[test]

@@ -4,12 +4,15 @@
 //! The probability of a pixel being on something that currently moves is `P = D ⊙ M`:
 //! - [`movable`]: the movable term D from the difference between the frame and its static
 //!   background (spec §1.3);
-//! - [`splat`]: forward-splatting view synthesis of a neighbour frame into the current view
+//! - [`splat`]: forward-splatting view synthesis of a neighbour frame into the current view,
+//!   through the lens distortion of the camera when it has one
 //!   (spec §1.5);
 //! - [`moving`]: the moving term M from static/dynamic flow differencing (spec §1.7);
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
 //! - [`pipeline`]: one frame end to end and the ablations;
+//! - [`rigidity`]: a pose-free motion cue, the residual of each pixel against the dominant
+//!   rigid motion to the neighbours found by RANSAC on depth-backed optical flow (new);
 //! - [`sequence`]: every frame of a sequence, frames from a [`FrameLoader`], in parallel chunks;
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
@@ -24,6 +27,7 @@ pub mod movable;
 pub mod moving;
 pub mod noise;
 pub mod pipeline;
+pub mod rigidity;
 pub mod sequence;
 pub mod splat;
 
@@ -38,11 +42,15 @@ pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
+pub use rigidity::{
+    Correspondences, RigidFit, RigidFitError, RigidFrame, RigidityMaps, RigidityParams,
+    rigidity_probability, rigidity_probability_with,
+};
 pub use sequence::{
     Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion,
     SequenceStats, StaticBackground,
 };
-pub use splat::{SplatParams, Warped, splat};
+pub use splat::{SplatParams, Warped, pixel_rays, splat};
 
 /// A single-channel `f32` image: depth in metres (0 = invalid) or a probability map.
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -95,6 +103,9 @@ pub enum MotionError {
     /// The optical flow failed.
     #[error("optical flow: {0}")]
     Flow(#[from] dynapix_flow::FlowError),
+    /// No rigid motion could be fitted between two frames ([`rigidity::fit_rigid_motion`]).
+    #[error("rigid motion fit: {0}")]
+    RigidFit(#[from] rigidity::RigidFitError),
 }
 
 /// Checks that an image has the expected size.

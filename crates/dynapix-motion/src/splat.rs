@@ -14,8 +14,17 @@
 //!
 //! The depth in the target view is splatted with the same weights, so a neighbour's depth can
 //! be carried into the current view (background reconstruction needs it).
+//!
+//! Lens distortion: images are raw (distorted, as the sensor gives them). With a distorted
+//! camera a source pixel is back-projected along its undistorted ray and the moved point is
+//! projected through the distortion to its raw target pixel. The rays come from a
+//! [`PixelRays`] table built once per camera and kept for the process ([`pixel_rays`]), so
+//! the per-pixel loop only looks them up. An undistorted camera takes the plain pinhole path,
+//! bit for bit what it always computed.
 
-use dynapix_geometry::{PinholeCamera, Se3};
+use std::sync::{Arc, Mutex};
+
+use dynapix_geometry::{PinholeCamera, PixelRays, Se3};
 use image::{Rgb, RgbImage};
 use serde::{Deserialize, Serialize};
 
@@ -81,6 +90,34 @@ struct Projected {
     z: f64,
 }
 
+/// How many cameras' ray tables [`pixel_rays`] keeps (a run uses one camera; tests a few).
+const RAY_CACHE_SIZE: usize = 4;
+
+/// Ray tables of the distorted cameras seen so far, most recent last.
+static RAY_CACHE: Mutex<Vec<Arc<PixelRays>>> = Mutex::new(Vec::new());
+
+/// The per-pixel undistorted rays of `cam`, built on first use and shared afterwards (a
+/// small process-wide cache keyed by the full camera); `None` for an undistorted camera,
+/// which needs no table. The table is a pure function of the camera, so the cache cannot
+/// change any result.
+pub fn pixel_rays(cam: &PinholeCamera) -> Option<Arc<PixelRays>> {
+    if !cam.is_distorted() {
+        return None;
+    }
+    // A panic elsewhere while the lock was held leaves a valid list behind: keep using it.
+    let mut cache = RAY_CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(r) = cache.iter().find(|r| r.camera() == cam) {
+        return Some(Arc::clone(r));
+    }
+    // Built under the lock so that parallel splats of the same camera build it once.
+    let rays = Arc::new(PixelRays::new(cam));
+    if cache.len() >= RAY_CACHE_SIZE {
+        cache.remove(0);
+    }
+    cache.push(Arc::clone(&rays));
+    Some(rays)
+}
+
 fn project_all(
     src_depth: &FloatImage,
     t_ts: &Se3,
@@ -88,6 +125,9 @@ fn project_all(
     skip_invalid: bool,
 ) -> Vec<Option<Projected>> {
     use rayon::prelude::*;
+    if let Some(rays) = pixel_rays(cam) {
+        return project_all_distorted(src_depth, t_ts, &rays, skip_invalid);
+    }
     let (w, h) = src_depth.dimensions();
     let r = t_ts.rotation.to_rotation_matrix();
     let r = *r.matrix();
@@ -121,8 +161,51 @@ fn project_all(
     out
 }
 
+/// [`project_all`] for a distorted camera: rays from the table, targets through the lens.
+fn project_all_distorted(
+    src_depth: &FloatImage,
+    t_ts: &Se3,
+    rays: &PixelRays,
+    skip_invalid: bool,
+) -> Vec<Option<Projected>> {
+    use rayon::prelude::*;
+    let (w, h) = src_depth.dimensions();
+    let r = *t_ts.rotation.to_rotation_matrix().matrix();
+    let t = t_ts.translation.vector;
+    let depth = src_depth.as_raw();
+    let mut out: Vec<Option<Projected>> = Vec::with_capacity(w as usize * h as usize);
+    out.resize_with(w as usize * h as usize, || None);
+    out.par_chunks_mut(w as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let ray_row = rays.row(y as u32);
+            for ((x, o), ray) in row.iter_mut().enumerate().zip(ray_row) {
+                let z = depth[y * w as usize + x] as f64;
+                if skip_invalid && !(z > 0.0 && z.is_finite()) {
+                    continue;
+                }
+                let q = r * nalgebra::Vector3::new(ray[0] * z, ray[1] * z, z) + t;
+                // Behind the target camera the lens model means nothing; the reference's
+                // projection of such points is only defined for the ideal pinhole.
+                let Some(uv) = rays.project(&nalgebra::Point3::from(q)) else {
+                    continue;
+                };
+                if !(uv.x.is_finite() && uv.y.is_finite() && q.z.is_finite()) {
+                    continue;
+                }
+                *o = Some(Projected {
+                    u: uv.x,
+                    v: uv.y,
+                    z: q.z,
+                });
+            }
+        });
+    out
+}
+
 /// Renders `src` (with its depth `src_depth`, metres) into the target view; `t_ts` maps
-/// source-camera points into the target camera (`T_ts = T_wt⁻¹ · T_ws`).
+/// source-camera points into the target camera (`T_ts = T_wt⁻¹ · T_ws`). With a distorted
+/// `cam`, both images are raw and the lens is modelled (see the module doc).
 pub fn splat(
     src: &RgbImage,
     src_depth: &FloatImage,
@@ -318,7 +401,72 @@ fn splat_paper(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::{Scene, small_camera};
+    use crate::testutil::{Scene, small_camera, small_distorted_camera};
+
+    /// Mean absolute green difference between a warp and the truth over non-hole pixels, and
+    /// the number of those pixels.
+    fn warp_error(out: &Warped, truth: &RgbImage) -> (f64, usize) {
+        let mut n = 0;
+        let mut err = 0.0f64;
+        for (i, (a, b)) in out.image.pixels().zip(truth.pixels()).enumerate() {
+            if !out.holes[i] {
+                n += 1;
+                err += (a.0[1] as f64 - b.0[1] as f64).abs();
+            }
+        }
+        (err / n.max(1) as f64, n)
+    }
+
+    #[test]
+    fn distortion_is_modelled_and_ray_tables_are_shared() {
+        let cam = small_distorted_camera();
+        let mut ideal = cam.clone();
+        ideal.dist = [0.0; 5];
+        let scene = Scene::default();
+        // Identity: every raw pixel goes back to itself through the lens.
+        let (img, depth) = scene.render(&cam, &Se3::identity(), false, 0.0);
+        let same = splat(
+            &img,
+            &depth,
+            &Se3::identity(),
+            &cam,
+            &SplatParams::default(),
+        )
+        .unwrap();
+        assert_eq!(same.image, img);
+        // A neighbour seen through the distorted lens (turned by 4.6° and moved by 15 cm)
+        // lands on the current raw image; the ideal pinhole model misplaces it.
+        let t_wn =
+            dynapix_geometry::se3::exp(&nalgebra::Vector6::new(0.0, 0.08, 0.0, 0.15, 0.02, 0.0));
+        let (cur, _) = scene.render(&cam, &Se3::identity(), false, 0.0);
+        let (nb, nb_depth) = scene.render(&cam, &t_wn, false, 0.0);
+        let (aware, n) = warp_error(
+            &splat(&nb, &nb_depth, &t_wn, &cam, &SplatParams::default()).unwrap(),
+            &cur,
+        );
+        let (ignoring, _) = warp_error(
+            &splat(&nb, &nb_depth, &t_wn, &ideal, &SplatParams::default()).unwrap(),
+            &cur,
+        );
+        assert!(n > 5000, "{n}");
+        assert!(
+            aware < 4.0 && aware < 0.7 * ignoring,
+            "lens {aware}, pinhole {ignoring}"
+        );
+        // Both modes accept the distorted camera; the table is built once and shared.
+        let r = splat(
+            &nb,
+            &nb_depth,
+            &t_wn,
+            &cam,
+            &SplatParams::new(Mode::Reference),
+        )
+        .unwrap();
+        assert!(warp_error(&r, &cur).0 < ignoring);
+        let a = pixel_rays(&cam).expect("distorted");
+        assert!(Arc::ptr_eq(&a, &pixel_rays(&cam).expect("cached")));
+        assert!(pixel_rays(&ideal).is_none());
+    }
 
     #[test]
     fn soft_weight_tracks_exp() {

@@ -1,4 +1,5 @@
-//! Test helpers: a ray-cast synthetic scene (textured wall, a box, an optional moving panel)
+//! Test helpers: a ray-cast synthetic scene (textured wall, a box, an optional moving panel;
+//! rendered through the lens distortion of the camera, if any)
 //! and a brute-force block-matching flow, so the algorithms can be tested without data files.
 
 use dynapix_flow::{FlowError, FlowField, FlowProvider};
@@ -11,6 +12,14 @@ use crate::FloatImage;
 /// A 96×72 camera, 80 px focal length.
 pub fn small_camera() -> PinholeCamera {
     PinholeCamera::new(96, 72, 80.0, 80.0, 47.5, 35.5)
+}
+
+/// [`small_camera`] with the strong radial-tangential distortion of the TUM fr1 Kinect
+/// (a few pixels of displacement towards the corners of this small image).
+pub fn small_distorted_camera() -> PinholeCamera {
+    let mut c = small_camera();
+    c.dist = [0.262383, -0.953104, -0.005358, 0.002628, 1.163314];
+    c
 }
 
 /// Fronto-parallel rectangles at fixed world depth.
@@ -54,11 +63,14 @@ impl Scene {
         let o = t_wc.translation.vector;
         for y in 0..cam.height {
             for x in 0..cam.width {
-                let dc = Vector3::new(
-                    (x as f64 - cam.cx) / cam.fx,
-                    (y as f64 - cam.cy) / cam.fy,
-                    1.0,
-                );
+                // A distorted camera sees along the undistorted ray of each raw pixel.
+                let (ux, uy) = if cam.is_distorted() {
+                    let p = cam.undistort_point(&nalgebra::Point2::new(x as f64, y as f64));
+                    (p.x, p.y)
+                } else {
+                    (x as f64, y as f64)
+                };
+                let dc = Vector3::new((ux - cam.cx) / cam.fx, (uy - cam.cy) / cam.fy, 1.0);
                 let dw = t_wc.rotation * dc;
                 let hit = |z: f64| -> Option<(f64, Point3<f64>)> {
                     let s = (z - o.z) / dw.z;

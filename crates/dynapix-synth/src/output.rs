@@ -375,8 +375,16 @@ pub fn augment_sequence(
     write_atomic(&out_dir.join("depth.txt"), depth_list.as_bytes())?;
     write_atomic(&out_dir.join("association.txt"), assoc.as_bytes())?;
     let gt_src = seq_dir.join("groundtruth.txt");
-    let gt = std::fs::read(&gt_src).map_err(|e| io_err(&gt_src, e))?;
-    write_atomic(&out_dir.join("groundtruth.txt"), &gt)?;
+    if seq.gt_convention.needs_conversion() {
+        // The source holds marker poses (Bonn); the output folder is a plain dynapix
+        // sequence, whose ground truth is read as camera poses: write the converted ones.
+        if let Some(gt) = &seq.groundtruth {
+            gt.write_tum(out_dir.join("groundtruth.txt"))?;
+        }
+    } else {
+        let gt = std::fs::read(&gt_src).map_err(|e| io_err(&gt_src, e))?;
+        write_atomic(&out_dir.join("groundtruth.txt"), &gt)?;
+    }
     settings.write(out_dir.join("camera.yaml"))?;
     Ok(frames.len())
 }

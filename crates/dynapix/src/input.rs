@@ -1,8 +1,8 @@
 //! A sequence folder opened for a run: the frames of the one reader
 //! ([`dynapix_io::Sequence`], one association policy) and the camera, resolved in one order
 //! for every command: an explicit settings file, else a preset, else the folder's
-//! `camera.yaml`, else the preset of a `rgbd_dataset_freiburgN_*` folder (or the GRADE
-//! layout), else an error that says how to give it (design §6).
+//! `camera.yaml`, else the preset of the folder's dataset (`rgbd_dataset_freiburgN_*`,
+//! `rgbd_bonn_*`) or the GRADE layout, else an error that says how to give it (design §6).
 
 use std::path::{Path, PathBuf};
 
@@ -30,15 +30,18 @@ pub enum CameraPreset {
     Tum3,
     /// GRADE (`GRADE.yaml`, depth in mm, 3000 features).
     Grade,
+    /// Bonn RGB-D Dynamic (the dataset's Kinect calibration, distorted).
+    Bonn,
 }
 
 impl CameraPreset {
     /// Every preset.
-    pub const ALL: [CameraPreset; 4] = [
+    pub const ALL: [CameraPreset; 5] = [
         CameraPreset::Tum1,
         CameraPreset::Tum2,
         CameraPreset::Tum3,
         CameraPreset::Grade,
+        CameraPreset::Bonn,
     ];
 
     /// The preset's name.
@@ -48,6 +51,7 @@ impl CameraPreset {
             CameraPreset::Tum2 => "tum2",
             CameraPreset::Tum3 => "tum3",
             CameraPreset::Grade => "grade",
+            CameraPreset::Bonn => "bonn",
         }
     }
 
@@ -58,6 +62,7 @@ impl CameraPreset {
             CameraPreset::Tum2 => Settings::tum2(),
             CameraPreset::Tum3 => Settings::tum3(),
             CameraPreset::Grade => Settings::grade(),
+            CameraPreset::Bonn => Settings::bonn(),
         }
     }
 }

@@ -66,7 +66,8 @@ impl TypedValueParser for CameraParser {
 /// How the camera is given (the same flags in every command).
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct CameraArgs {
-    /// Camera preset (default: the folder's camera.yaml, or tumN for rgbd_dataset_freiburgN_*).
+    /// Camera preset (default: the folder's camera.yaml, else tumN for
+    /// rgbd_dataset_freiburgN_* and bonn for rgbd_bonn_*).
     #[arg(long, value_parser = CameraParser, conflicts_with = "settings")]
     pub camera: Option<CameraPreset>,
     /// ORB-SLAM2 settings YAML (Camera.*, ThDepth, DepthMapFactor, ORBextractor.*); missing
@@ -245,8 +246,9 @@ pub fn write_json(path: &Path, value: &serde_json::Value) -> anyhow::Result<()> 
     Ok(())
 }
 
-/// Evaluates `traj` against `seq_dir/groundtruth.txt` (ATE RMSE, tracking rate over the
-/// frame times `stamps`); `None` without ground truth.
+/// Evaluates `traj` against `seq_dir/groundtruth.txt` as camera poses (Bonn marker poses
+/// converted, like the sequence reader does; ATE RMSE, tracking rate over the frame times
+/// `stamps`); `None` without ground truth.
 pub fn evaluate(
     seq_dir: &Path,
     traj: &Path,
@@ -256,7 +258,7 @@ pub fn evaluate(
     if !gt_path.exists() {
         return Ok(None);
     }
-    let gt = dynapix_eval::files::read_trajectory(&gt_path)?;
+    let gt = dynapix_eval::files::read_camera_ground_truth(&gt_path)?;
     let params = dynapix_eval::EvalParams::default();
     Ok(Some(dynapix_eval::files::evaluate_run_file(
         &gt,
@@ -268,7 +270,7 @@ pub fn evaluate(
 
 /// Writes the trajectory top view and the ATE over time of `traj` into `dir`.
 pub fn plots(seq_dir: &Path, traj: &Path, dir: &Path) -> anyhow::Result<()> {
-    let gt = dynapix_eval::files::read_trajectory(&seq_dir.join("groundtruth.txt"))?;
+    let gt = dynapix_eval::files::read_camera_ground_truth(&seq_dir.join("groundtruth.txt"))?;
     let est = dynapix_eval::files::read_trajectory(traj)?;
     let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default())?;
     dynapix_eval::plot::write_plots(dir, &ev.ate)?;

@@ -8,6 +8,7 @@ use dynapix_eval::{
     AssocParams, AteParams, EvalParams, Evaluation, RpeDelta, RpeParams, SequenceSummary,
     TrackingParams, evaluate, paper_table,
 };
+use dynapix_io::{GroundTruth, GtFrame};
 use std::path::{Path, PathBuf};
 
 /// How the three modes of `dynapix eval` are called (shown after the options in `--help`).
@@ -24,8 +25,99 @@ Modes:
     (one --sequence per sequence; paths must not contain ':')
 
 --out DIR writes DIR/table.md, table.csv and table.json. With --json, one trajectory prints
-one JSON object (at least ate_rmse_m and pairs; with --reference also tracking_rate and
-missing_time_s); the table modes print the table as JSON.";
+one JSON object (at least ate_rmse_m, pairs, motionless_floor_m and gt_frame; with
+--reference also tracking_rate and missing_time_s); the table modes print the table as JSON.
+
+Every evaluation also reports the motionless floor: the ATE RMSE of a camera that never moves
+(one constant pose) on the same pairs after the same alignment. An ATE at or above it is no
+better than standing still.
+
+Ground truth: the groundtruth.txt of a Bonn RGB-D Dynamic folder (rgbd_bonn_*) holds poses of
+the motion-capture marker, not of the camera; --gt-frame camera (default) converts them
+(T_ros·T·T_ros·T_m, as the dataset's tools do), --gt-frame raw scores against the file as it
+is, as published Bonn results do. Other ground-truth files hold camera poses either way.";
+
+/// Which ground-truth poses to score against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum GtFrameArg {
+    /// Camera poses (Bonn marker poses converted).
+    Camera,
+    /// The file as it is (Bonn: marker poses, what published Bonn numbers use).
+    Raw,
+}
+
+impl From<GtFrameArg> for GtFrame {
+    fn from(a: GtFrameArg) -> Self {
+        match a {
+            GtFrameArg::Camera => GtFrame::Camera,
+            GtFrameArg::Raw => GtFrame::Raw,
+        }
+    }
+}
+
+/// The ground truth of one sequence and how it was read.
+struct LoadedGt {
+    poses: Vec<(f64, dynapix_geometry::Se3)>,
+    info: GroundTruth,
+}
+
+impl LoadedGt {
+    fn read(path: &Path, frame: GtFrame) -> anyhow::Result<Self> {
+        let info = dynapix_io::read_ground_truth(path, frame)
+            .with_context(|| format!("reading ground truth {}", path.display()))?;
+        let poses = info
+            .trajectory
+            .poses
+            .iter()
+            .map(|p| (p.t, p.pose))
+            .collect();
+        Ok(Self { poses, info })
+    }
+
+    /// The JSON fields that say which poses were scored against.
+    fn json(&self, sequence: Option<&str>) -> GtJson {
+        GtJson {
+            sequence: sequence.map(str::to_string),
+            gt_frame: self.info.frame.as_str(),
+            gt_file_holds: self.info.convention.as_str(),
+            gt_converted: self.info.converted(),
+            gt_description: self.info.description(),
+        }
+    }
+}
+
+/// Which ground-truth poses an evaluation scored against (JSON output).
+#[derive(serde::Serialize)]
+struct GtJson {
+    /// Sequence name (table modes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sequence: Option<String>,
+    /// `camera` or `raw` (`--gt-frame`).
+    gt_frame: &'static str,
+    /// What the file holds: `camera` or `bonn-marker`.
+    gt_file_holds: &'static str,
+    /// True when marker poses were converted to camera poses.
+    gt_converted: bool,
+    /// One line for people.
+    gt_description: &'static str,
+}
+
+/// `--json` of one trajectory: the report, then the ground-truth fields.
+#[derive(serde::Serialize)]
+struct SingleJson {
+    #[serde(flatten)]
+    report: dynapix_eval::Report,
+    #[serde(flatten)]
+    gt: GtJson,
+}
+
+/// `--json` of the table modes: the table, then the ground truth of every sequence.
+#[derive(serde::Serialize)]
+struct TableJson<'a> {
+    #[serde(flatten)]
+    table: &'a dynapix_eval::PaperTable,
+    ground_truth: Vec<GtJson>,
+}
 
 /// Arguments of `dynapix eval` (see [`MODES`]).
 #[derive(clap::Args, Debug)]
@@ -34,6 +126,11 @@ pub struct Args {
     /// Ground-truth trajectory (TUM format: timestamp tx ty tz qx qy qz qw).
     #[arg(long, value_name = "FILE")]
     pub gt: Option<PathBuf>,
+    /// Ground-truth poses to score against: `camera` converts the marker poses of a Bonn
+    /// `rgbd_bonn_*/groundtruth.txt` to camera poses; `raw` takes the file as it is (what
+    /// published Bonn results use). Other files hold camera poses either way.
+    #[arg(long, value_enum, default_value = "camera", value_name = "FRAME")]
+    pub gt_frame: GtFrameArg,
     /// Estimated trajectory (TUM format). Single-trajectory mode.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["runs", "sequence"])]
     pub est: Option<PathBuf>,
@@ -144,13 +241,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let Some(gt_path) = args.gt.as_deref() else {
         bail!("give --gt with --est or --runs, or one --sequence per sequence (see --help)");
     };
-    let gt = read_trajectory(gt_path)
-        .with_context(|| format!("reading ground truth {}", gt_path.display()))?;
+    let gt = LoadedGt::read(gt_path, args.gt_frame.into())?;
     let reference = read_reference(args.reference.as_deref())?;
     if let Some(est_path) = args.est.as_deref() {
         let est = read_trajectory(est_path)
             .with_context(|| format!("reading estimate {}", est_path.display()))?;
-        let ev = evaluate(&gt, &est, reference.as_deref(), &p)
+        let ev = evaluate(&gt.poses, &est, reference.as_deref(), &p)
             .with_context(|| format!("evaluating {}", est_path.display()))?;
         if let Some(dir) = args.plot.as_deref() {
             std::fs::create_dir_all(dir)
@@ -161,16 +257,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
         if args.json {
-            println!("{}", serde_json::to_string(&ev.report())?);
+            let out = SingleJson {
+                report: ev.report(),
+                gt: gt.json(None),
+            };
+            println!("{}", serde_json::to_string(&out)?);
         } else {
+            println!("Ground truth: {}", gt.info.description());
             print_single(&ev, &p);
         }
         return Ok(());
     }
     if let Some(runs) = args.runs.as_deref() {
         let name = sequence_name(gt_path);
-        let seq = evaluate_sequence(&name, &gt, runs, reference.as_deref(), &p)?;
-        return output_table(&args, vec![seq]);
+        let seq = evaluate_sequence(&name, &gt.poses, runs, reference.as_deref(), &p)?;
+        return output_table(&args, vec![seq], vec![(name, gt)]);
     }
     bail!("give --est (one trajectory) or --runs (a folder of runs); see --help")
 }
@@ -213,6 +314,7 @@ fn evaluate_sequence(
 
 fn run_sequences(args: &Args, p: &EvalParams) -> anyhow::Result<()> {
     let mut seqs = Vec::new();
+    let mut gts = Vec::new();
     for spec in &args.sequence {
         let (name, rest) = spec
             .split_once('=')
@@ -223,21 +325,25 @@ fn run_sequences(args: &Args, p: &EvalParams) -> anyhow::Result<()> {
             [g, r, f] => (*g, *r, Some(Path::new(*f))),
             _ => bail!("--sequence {spec:?}: expected NAME=GT:RUNS[:REFERENCE]"),
         };
-        let gt = read_trajectory(Path::new(gt_path))
-            .with_context(|| format!("reading ground truth {gt_path}"))?;
+        let gt = LoadedGt::read(Path::new(gt_path), args.gt_frame.into())?;
         let reference = read_reference(reference.or(args.reference.as_deref()))?;
         seqs.push(evaluate_sequence(
             name,
-            &gt,
+            &gt.poses,
             Path::new(runs),
             reference.as_deref(),
             p,
         )?);
+        gts.push((name.to_string(), gt));
     }
-    output_table(args, seqs)
+    output_table(args, seqs, gts)
 }
 
-fn output_table(args: &Args, seqs: Vec<SequenceSummary>) -> anyhow::Result<()> {
+fn output_table(
+    args: &Args,
+    seqs: Vec<SequenceSummary>,
+    gts: Vec<(String, LoadedGt)>,
+) -> anyhow::Result<()> {
     let table = paper_table(seqs);
     if let Some(dir) = args.out.as_deref() {
         for f in write_table(dir, &table)? {
@@ -245,15 +351,30 @@ fn output_table(args: &Args, seqs: Vec<SequenceSummary>) -> anyhow::Result<()> {
         }
     }
     if args.json {
-        println!("{}", table.to_json());
+        let out = TableJson {
+            table: &table,
+            ground_truth: gts.iter().map(|(name, gt)| gt.json(Some(name))).collect(),
+        };
+        println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
-    for s in &table.sequences {
+    for (name, gt) in &gts {
+        println!("Ground truth of {name}: {}", gt.info.description());
+    }
+    println!();
+    for (k, s) in table.sequences.iter().enumerate() {
         println!("## {}\n", s.sequence);
-        println!("| method | run | ATE RMSE [m] | pairs | TR | missing [s] |");
-        println!("|---|---|---:|---:|---:|---:|");
+        if let Some(f) = table.floors_m.get(k).copied().flatten() {
+            println!(
+                "Motionless floor (a camera that never moves, same pairs): {f:.6} m (mean over runs)\n"
+            );
+        }
+        println!(
+            "| method | run | ATE RMSE [m] | motionless floor [m] | pairs | TR | missing [s] |"
+        );
+        println!("|---|---|---:|---:|---:|---:|---:|");
         for m in &s.methods {
-            for r in &m.runs {
+            for (r, floor) in m.runs.iter().zip(&m.run_floors_m) {
                 let ate = r
                     .ate_rmse_m
                     .map_or_else(|| "failed".to_string(), |v| format!("{v:.6}"));
@@ -263,8 +384,9 @@ fn output_table(args: &Args, seqs: Vec<SequenceSummary>) -> anyhow::Result<()> {
                 let miss = r
                     .missing_time_s
                     .map_or_else(|| "—".to_string(), |v| format!("{v:.3}"));
+                let floor = floor.map_or_else(|| "—".to_string(), |v| format!("{v:.6}"));
                 println!(
-                    "| {} | {} | {ate} | {} | {tr} | {miss} |",
+                    "| {} | {} | {ate} | {floor} | {} | {tr} | {miss} |",
                     m.method, r.name, r.pairs
                 );
             }
@@ -295,6 +417,15 @@ fn print_single(ev: &Evaluation, p: &EvalParams) {
     println!("  std     {:.6} m", s.std);
     println!("  min     {:.6} m", s.min);
     println!("  max     {:.6} m", s.max);
+    let floor = ev.motionless_floor();
+    let ratio = if floor > 0.0 {
+        format!("; ATE/floor {:.3}", s.rmse / floor)
+    } else {
+        String::new()
+    };
+    println!(
+        "  motionless floor {floor:.6} m (a camera that never moves, same pairs and alignment{ratio})"
+    );
     if let Some(r) = &ev.rpe {
         println!("RPE ({} pairs)", r.pairs);
         println!(

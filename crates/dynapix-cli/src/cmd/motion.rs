@@ -1,8 +1,8 @@
 //! `dynapix motion`: per-pixel motion probability maps for a sequence (paper §3.1, spec §1).
 //!
 //! Reads the sequence with the library's reader, the camera (`--camera`, `--settings`,
-//! `camera.yaml`, or the TUM preset of `rgbd_dataset_freiburgN_*` folders), poses (ground
-//! truth with SLERP, the system's own ORB-SLAM2 pass, or any TUM trajectory) and a background
+//! `camera.yaml`, or the preset of `rgbd_dataset_freiburgN_*` and `rgbd_bonn_*` folders),
+//! poses (ground truth as camera poses with SLERP, the system's own ORB-SLAM2 pass, or any TUM trajectory) and a background
 //! source (`background/` + `depth_bg/` folders, or a reconstruction from neighbouring frames),
 //! and writes `SEQ_DIR/prob/<rgb file name>` (16-bit, `trunc((1 − P)·1000)`, the reference
 //! format) plus `prob/motion.json` recording every source and parameter (read back by `run`).
@@ -192,7 +192,8 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         match &config.motion.poses {
             PoseSource::GroundTruth => {
                 let path = seq.dir.join("groundtruth.txt");
-                let gt = Trajectory::read_tum(&path)?;
+                // Camera poses (a Bonn folder's marker poses converted).
+                let gt = dynapix_io::camera_trajectory(&path)?;
                 let (p, m) = FramePoses::lookup(
                     &gt,
                     &stamps,

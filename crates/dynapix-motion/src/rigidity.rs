@@ -1,0 +1,1281 @@
+//! A pose-free motion cue: how badly a pixel fits the dominant rigid motion between a frame
+//! and its neighbours (new; not part of the paper or the reference code).
+//!
+//! The moving term of DynaPix needs camera poses, and the first SLAM pass on a crowded real
+//! sequence (Bonn `crowd`) follows the people. This cue needs none:
+//! 1. [`correspondences`]: on a grid, pixels of frame i with depth are matched to frame j by
+//!    dense optical flow i → j and lifted to 3-D in both cameras (through the undistorted
+//!    rays of [`PixelRays`], so lens distortion is handled). The target point sits on the
+//!    ray of the rounded target pixel plus the linear sub-pixel offset, at the depth of the
+//!    rounded target pixel.
+//! 2. [`fit_rigid_motion`]: RANSAC (seeded 3-point samples, Kabsch/Horn hypotheses) for the
+//!    rigid motion `B ≈ R·A + t` with the most correspondences whose normalised squared
+//!    residual ([`residual_squared`]: re-projection error in pixels over `σ_px`, depth error
+//!    over the Kinect-like `σ_z = a·z² + b`) is below `chi2`, then a few rounds of refitting
+//!    on the inliers.
+//! 3. [`dense_residual`]: the residual `r` of every pixel under the fitted motion.
+//! 4. [`rigidity_from_residuals`]: per pixel the smallest residual over the neighbours that
+//!    see it (an occlusion in one neighbour does not make a pixel look moving), mapped to
+//!    `P = clamp((r − r0)/(r1 − r0), 0, 1)`; pixels without a residual get P = 0.
+//!
+//! [`rigidity_probability`] runs all four steps for one frame with DIS flow.
+//!
+//! Limits: the dominant motion is the one with the most correspondences, so where movers
+//! cover more of the pixels with depth than the static scene does, it can be a mover's and
+//! the map then marks the static scene as moving. The defaults (σ_px = 1 px, r0 = 3, r1 = 8)
+//! are meant for 640×480: at half that resolution a one-frame motion gives half the pixel
+//! residual. Motion along the viewing direction only counts through `σ_z`, which grows with
+//! the squared depth.
+//!
+//! Everything is deterministic: the samples come from a seeded ChaCha8 generator, and the
+//! parallel parts (hypothesis scoring, rows of the dense residual, neighbours) are reduced in
+//! a fixed order.
+
+use std::sync::Arc;
+
+use dynapix_flow::{DisFlow, FlowField, FlowProvider, Preset};
+use dynapix_geometry::align::align_se3;
+use dynapix_geometry::{PinholeCamera, PixelRays, Se3};
+use image::GrayImage;
+use nalgebra::{Matrix3, Point3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::splat::pixel_rays;
+use crate::{FloatImage, MotionError, check_size};
+
+/// Parameters of the rigidity cue. `Default` holds the values of the prototype.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RigidityParams {
+    /// DIS preset of the flow from a frame to its neighbour (used by [`rigidity_probability`]).
+    pub flow_preset: Preset,
+    /// Grid step (pixels) of the correspondences fed to RANSAC.
+    pub stride: u32,
+    /// Depth (metres) a pixel must exceed, in both frames, to take part.
+    pub min_depth: f64,
+    /// Fewer correspondences than this give no fit (at least 3).
+    pub min_correspondences: usize,
+    /// Number of 3-point samples drawn by RANSAC (degenerate samples are drawn, then skipped).
+    pub ransac_iterations: usize,
+    /// Seed of the sampling.
+    pub seed: u64,
+    /// A sample is degenerate when `|(a1 − a0) × (a2 − a0)|` (m²) is below this.
+    pub min_sample_area: f64,
+    /// A correspondence is an inlier when its normalised squared residual is below this
+    /// (27 = (3σ)² on 3 degrees of freedom).
+    pub chi2: f64,
+    /// Rounds of refitting on the inliers after RANSAC.
+    pub refine_rounds: usize,
+    /// Standard deviation (pixels) of the flow end point.
+    pub sigma_px: f64,
+    /// Quadratic coefficient `a` (1/m) of the depth noise `σ_z = a·z² + b`.
+    pub sigma_z_quadratic: f64,
+    /// Constant part `b` (m) of the depth noise `σ_z = a·z² + b`.
+    pub sigma_z_constant: f64,
+    /// A moved point at or below this depth (m) is behind the camera: infinite residual.
+    pub min_projected_depth: f64,
+    /// Residual at and below which P = 0.
+    pub r0: f64,
+    /// Residual at and above which P = 1.
+    pub r1: f64,
+    /// Neighbour frame offsets a caller should pass (e.g. `[-1, 1]`); the functions of this
+    /// module take the neighbours themselves.
+    pub offsets: Vec<i64>,
+}
+
+impl Default for RigidityParams {
+    fn default() -> Self {
+        Self {
+            flow_preset: Preset::Medium,
+            stride: 4,
+            min_depth: 0.1,
+            min_correspondences: 20,
+            ransac_iterations: 500,
+            seed: 0,
+            min_sample_area: 1e-3,
+            chi2: 27.0,
+            refine_rounds: 5,
+            sigma_px: 1.0,
+            sigma_z_quadratic: 1.5e-3,
+            sigma_z_constant: 0.003,
+            min_projected_depth: 0.05,
+            r0: 3.0,
+            r1: 8.0,
+            offsets: vec![-1, 1],
+        }
+    }
+}
+
+fn invalid(name: &'static str, message: impl Into<String>) -> MotionError {
+    MotionError::InvalidParam {
+        name,
+        message: message.into(),
+    }
+}
+
+impl RigidityParams {
+    /// Checks every value against its valid range.
+    pub fn validate(&self) -> Result<(), MotionError> {
+        let finite_nonneg = |name, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(name, format!("must be finite and ≥ 0, got {v}")))
+            }
+        };
+        let positive = |name, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(name, format!("must be finite and > 0, got {v}")))
+            }
+        };
+        if self.stride == 0 {
+            return Err(invalid("stride", "must be at least 1"));
+        }
+        finite_nonneg("min_depth", self.min_depth)?;
+        if self.min_correspondences < 3 {
+            return Err(invalid(
+                "min_correspondences",
+                format!("must be at least 3, got {}", self.min_correspondences),
+            ));
+        }
+        if self.ransac_iterations == 0 {
+            return Err(invalid("ransac_iterations", "must be at least 1"));
+        }
+        finite_nonneg("min_sample_area", self.min_sample_area)?;
+        positive("chi2", self.chi2)?;
+        positive("sigma_px", self.sigma_px)?;
+        finite_nonneg("sigma_z_quadratic", self.sigma_z_quadratic)?;
+        positive("sigma_z_constant", self.sigma_z_constant)?;
+        if !self.min_projected_depth.is_finite() {
+            return Err(invalid("min_projected_depth", "must be finite"));
+        }
+        finite_nonneg("r0", self.r0)?;
+        if !(self.r1.is_finite() && self.r1 > self.r0) {
+            return Err(invalid(
+                "r1",
+                format!("must be finite and exceed r0 ({} ≤ {})", self.r1, self.r0),
+            ));
+        }
+        if self.offsets.is_empty() || self.offsets.contains(&0) {
+            return Err(invalid(
+                "offsets",
+                format!("must be non-empty and non-zero, got {:?}", self.offsets),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Why no rigid motion could be fitted between two frames.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum RigidFitError {
+    /// Too few pixels have depth and a flow target with depth.
+    #[error("too few correspondences: {got} (need {needed})")]
+    TooFewCorrespondences {
+        /// Correspondences found.
+        got: usize,
+        /// Correspondences needed ([`RigidityParams::min_correspondences`]).
+        needed: usize,
+    },
+    /// Every sample was degenerate (points nearly collinear), so there was no hypothesis.
+    #[error("no non-degenerate sample among {samples} RANSAC samples")]
+    NoHypothesis {
+        /// Samples drawn.
+        samples: usize,
+    },
+}
+
+/// Matched 3-D points of frame i and its neighbour j, each in its own camera frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Correspondences {
+    /// Points `A` in camera i.
+    pub source: Vec<Point3<f64>>,
+    /// Points `B` in camera j.
+    pub target: Vec<Point3<f64>>,
+    /// Pixel `(x, y)` of frame i of each pair.
+    pub pixels: Vec<[u32; 2]>,
+}
+
+impl Correspondences {
+    /// Number of pairs.
+    pub fn len(&self) -> usize {
+        self.source.len()
+    }
+
+    /// True when there is no pair.
+    pub fn is_empty(&self) -> bool {
+        self.source.is_empty()
+    }
+}
+
+/// The rigid motion fitted between frame i and its neighbour j.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigidFit {
+    /// Maps camera-i points into camera j (`B ≈ motion · A`, i.e. `T_ji`).
+    pub motion: Se3,
+    /// Correspondences that are inliers of the final motion.
+    pub inliers: usize,
+    /// Correspondences the fit saw.
+    pub correspondences: usize,
+}
+
+impl RigidFit {
+    /// Fraction of the correspondences that are inliers of the final motion.
+    pub fn inlier_fraction(&self) -> f64 {
+        if self.correspondences == 0 {
+            0.0
+        } else {
+            self.inliers as f64 / self.correspondences as f64
+        }
+    }
+}
+
+/// The two images of a frame the rigidity cue needs.
+#[derive(Clone, Copy, Debug)]
+pub struct RigidFrame<'a> {
+    /// Grey image for the optical flow (e.g. [`crate::moving::to_gray`] of the colour image).
+    pub gray: &'a GrayImage,
+    /// Depth in metres (0 = invalid).
+    pub depth: &'a FloatImage,
+}
+
+/// The rigidity cue of one frame.
+#[derive(Clone, Debug)]
+pub struct RigidityMaps {
+    /// Motion probability P ∈ [0, 1] (0 where no neighbour gives a residual).
+    pub p: FloatImage,
+    /// Smallest normalised residual over the neighbours (NaN where none gives one; infinite
+    /// where the fitted motion puts the point behind the camera).
+    pub residual: FloatImage,
+    /// The fit of each neighbour, in the order given.
+    pub fits: Vec<Result<RigidFit, RigidFitError>>,
+}
+
+/// The normalised residual model of one parameter set and camera.
+#[derive(Clone, Copy, Debug)]
+struct Model {
+    fx_over_sigma: f64,
+    fy_over_sigma: f64,
+    sz_a: f64,
+    sz_b: f64,
+    min_pz: f64,
+}
+
+impl Model {
+    fn new(cam: &PinholeCamera, params: &RigidityParams) -> Self {
+        Self {
+            fx_over_sigma: cam.fx / params.sigma_px,
+            fy_over_sigma: cam.fy / params.sigma_px,
+            sz_a: params.sigma_z_quadratic,
+            sz_b: params.sigma_z_constant,
+            min_pz: params.min_projected_depth,
+        }
+    }
+
+    /// `r²` of the moved point `p` against the target with normalised image coordinates `bn`
+    /// and depth `bz`.
+    #[inline]
+    fn r2(&self, p: &Vector3<f64>, bn: [f64; 2], bz: f64) -> f64 {
+        // A NaN depth counts as behind the camera.
+        if p.z.is_nan() || p.z <= self.min_pz {
+            return f64::INFINITY;
+        }
+        let ex = (p.x / p.z - bn[0]) * self.fx_over_sigma;
+        let ey = (p.y / p.z - bn[1]) * self.fy_over_sigma;
+        let ez = (p.z - bz) / (self.sz_a * bz * bz + self.sz_b);
+        ex * ex + ey * ey + ez * ez
+    }
+}
+
+/// Normalised squared residual of the pair `(a, b)` under `motion`: with `P = motion·a`,
+/// `e_x = (P.x/P.z − b.x/b.z)·fx/σ_px`, `e_y` likewise with `fy`, `e_z = (P.z − b.z)/σ_z`,
+/// `σ_z = a·b.z² + b`; `r² = e_x² + e_y² + e_z²`. Infinite when `P.z` is at or below
+/// [`RigidityParams::min_projected_depth`] or `b` is not in front of the camera.
+pub fn residual_squared(
+    motion: &Se3,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    cam: &PinholeCamera,
+    params: &RigidityParams,
+) -> f64 {
+    if b.z.is_nan() || b.z <= 0.0 {
+        return f64::INFINITY;
+    }
+    let p = motion.transform_point(a).coords;
+    Model::new(cam, params).r2(&p, [b.x / b.z, b.y / b.z], b.z)
+}
+
+/// One frame pair with its flow, for the per-pixel look-ups shared by the correspondences
+/// and the dense residual.
+struct Pair<'a> {
+    depth_i: &'a FloatImage,
+    depth_j: &'a FloatImage,
+    flow: &'a FlowField,
+    rays: &'a PixelRays,
+    min_depth: f64,
+}
+
+/// A pixel of frame i lifted to 3-D and the normalised coordinates and depth of its target.
+struct Lifted {
+    a: Vector3<f64>,
+    bn: [f64; 2],
+    bz: f64,
+}
+
+impl<'a> Pair<'a> {
+    fn new(
+        depth_i: &'a FloatImage,
+        depth_j: &'a FloatImage,
+        flow: &'a FlowField,
+        rays: &'a PixelRays,
+        params: &RigidityParams,
+    ) -> Result<Self, MotionError> {
+        let cam = rays.camera();
+        let size = (cam.width, cam.height);
+        check_size("depth of frame i", size, depth_i.dimensions())?;
+        check_size("depth of the neighbour", size, depth_j.dimensions())?;
+        check_size("flow", size, (flow.width, flow.height))?;
+        if flow.data.len() != cam.width as usize * cam.height as usize {
+            return Err(MotionError::SizeMismatch {
+                what: "flow data".into(),
+                expected: size,
+                got: (flow.data.len() as u32, 1),
+            });
+        }
+        Ok(Self {
+            depth_i,
+            depth_j,
+            flow,
+            rays,
+            min_depth: params.min_depth,
+        })
+    }
+
+    /// The pixel `(x, y)` of frame i lifted, if it has depth, a ray, a flow target inside the
+    /// image (within the span of pixel centres) and depth at the rounded target pixel.
+    #[inline]
+    fn lift(&self, x: u32, y: u32) -> Option<Lifted> {
+        let cam = self.rays.camera();
+        let z = self.depth_i.get_pixel(x, y)[0] as f64;
+        if z.is_nan() || z <= self.min_depth {
+            return None;
+        }
+        let ri = self.rays.ray(x, y)?;
+        let f = self.flow.get(x, y);
+        let u2 = x as f64 + f[0] as f64;
+        let v2 = y as f64 + f[1] as f64;
+        let inside = (0.0..=(cam.width - 1) as f64).contains(&u2)
+            && (0.0..=(cam.height - 1) as f64).contains(&v2);
+        if !inside {
+            return None;
+        }
+        let (ur, vr) = (u2.round(), v2.round());
+        let (ui, vi) = (ur as u32, vr as u32);
+        let z2 = self.depth_j.get_pixel(ui, vi)[0] as f64;
+        if z2.is_nan() || z2 <= self.min_depth {
+            return None;
+        }
+        let rj = self.rays.ray(ui, vi)?;
+        Some(Lifted {
+            a: Vector3::new(ri[0] * z, ri[1] * z, z),
+            bn: [rj[0] + (u2 - ur) / cam.fx, rj[1] + (v2 - vr) / cam.fy],
+            bz: z2,
+        })
+    }
+}
+
+/// Correspondences of frame i to its neighbour j on a grid of step
+/// [`RigidityParams::stride`]: pixel `(x, y)` with depth `z_i > min_depth` whose flow target
+/// `(u2, v2)` lies inside the image with depth `z_j > min_depth` at the rounded target gives
+/// `A = z_i·ray(x, y)` and `B = z_j·(ray(round(u2), round(v2)) + ((u2 − round u2)/fx,
+/// (v2 − round v2)/fy), 1)`. `flow` goes from i to j; `rays` fixes the camera and image size.
+pub fn correspondences(
+    depth_i: &FloatImage,
+    depth_j: &FloatImage,
+    flow: &FlowField,
+    rays: &PixelRays,
+    params: &RigidityParams,
+) -> Result<Correspondences, MotionError> {
+    params.validate()?;
+    let pair = Pair::new(depth_i, depth_j, flow, rays, params)?;
+    let cam = rays.camera();
+    let mut out = Correspondences::default();
+    for y in (0..cam.height).step_by(params.stride as usize) {
+        for x in (0..cam.width).step_by(params.stride as usize) {
+            if let Some(l) = pair.lift(x, y) {
+                out.source.push(Point3::from(l.a));
+                out.target
+                    .push(Point3::new(l.bn[0] * l.bz, l.bn[1] * l.bz, l.bz));
+                out.pixels.push([x, y]);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Kabsch/Horn: the rigid motion minimising `Σ‖R·aₖ + t − bₖ‖²` (SVD with the reflection
+/// guard); `None` for fewer than 3 pairs, non-finite input or an SVD failure.
+fn kabsch(source: &[Point3<f64>], target: &[Point3<f64>]) -> Option<Se3> {
+    align_se3(source, target).ok().map(|a| a.se3())
+}
+
+/// A correspondence's target in the form the residual needs.
+#[derive(Clone, Copy)]
+struct Target {
+    bn: [f64; 2],
+    bz: f64,
+}
+
+fn count_inliers(
+    motion: &Se3,
+    source: &[Point3<f64>],
+    targets: &[Target],
+    model: &Model,
+    chi2: f64,
+) -> usize {
+    let r: Matrix3<f64> = *motion.rotation.to_rotation_matrix().matrix();
+    let t = motion.translation.vector;
+    source
+        .iter()
+        .zip(targets)
+        .filter(|(a, b)| model.r2(&(r * a.coords + t), b.bn, b.bz) < chi2)
+        .count()
+}
+
+fn inlier_pairs(
+    motion: &Se3,
+    corr: &Correspondences,
+    targets: &[Target],
+    model: &Model,
+    chi2: f64,
+) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
+    let r: Matrix3<f64> = *motion.rotation.to_rotation_matrix().matrix();
+    let t = motion.translation.vector;
+    corr.source
+        .iter()
+        .zip(&corr.target)
+        .zip(targets)
+        .filter(|((a, _), b)| model.r2(&(r * a.coords + t), b.bn, b.bz) < chi2)
+        .map(|((a, b), _)| (*a, *b))
+        .unzip()
+}
+
+/// RANSAC for the rigid motion `B ≈ R·A + t` of `corr` (see the module documentation):
+/// [`RigidityParams::ransac_iterations`] seeded 3-point samples, degenerate ones skipped,
+/// each hypothesis scored by its number of inliers (`r² < chi2`, [`residual_squared`]; the
+/// first best hypothesis wins ties), then [`RigidityParams::refine_rounds`] rounds of Kabsch
+/// on the inliers. `cam` gives the focal lengths of the residual.
+///
+/// A pair that cannot be fitted gives [`MotionError::RigidFit`].
+pub fn fit_rigid_motion(
+    corr: &Correspondences,
+    cam: &PinholeCamera,
+    params: &RigidityParams,
+) -> Result<RigidFit, MotionError> {
+    params.validate()?;
+    if corr.target.len() != corr.source.len() {
+        return Err(invalid(
+            "correspondences",
+            format!(
+                "{} source points but {} target points",
+                corr.source.len(),
+                corr.target.len()
+            ),
+        ));
+    }
+    let n = corr.len();
+    if n < params.min_correspondences {
+        return Err(RigidFitError::TooFewCorrespondences {
+            got: n,
+            needed: params.min_correspondences,
+        }
+        .into());
+    }
+    let model = Model::new(cam, params);
+    let targets: Vec<Target> = corr
+        .target
+        .iter()
+        .map(|b| Target {
+            bn: [b.x / b.z, b.y / b.z],
+            bz: b.z,
+        })
+        .collect();
+
+    // Samples are drawn in sequence from the seeded generator; only the scoring is parallel.
+    let mut rng = ChaCha8Rng::seed_from_u64(params.seed);
+    // (The reservation is capped: the iteration count is user data.)
+    let mut hypotheses = Vec::with_capacity(params.ransac_iterations.min(4096));
+    for _ in 0..params.ransac_iterations {
+        let idx = rand::seq::index::sample(&mut rng, n, 3);
+        let a = [
+            corr.source[idx.index(0)],
+            corr.source[idx.index(1)],
+            corr.source[idx.index(2)],
+        ];
+        let area = (a[1] - a[0]).cross(&(a[2] - a[0])).norm();
+        // NaN areas (non-finite input) are degenerate too.
+        if area.is_nan() || area < params.min_sample_area {
+            continue;
+        }
+        let b = [
+            corr.target[idx.index(0)],
+            corr.target[idx.index(1)],
+            corr.target[idx.index(2)],
+        ];
+        if let Some(m) = kabsch(&a, &b) {
+            hypotheses.push(m);
+        }
+    }
+    let scores: Vec<usize> = hypotheses
+        .par_iter()
+        .map(|m| count_inliers(m, &corr.source, &targets, &model, params.chi2))
+        .collect();
+    let mut best: Option<(usize, usize)> = None;
+    for (k, &s) in scores.iter().enumerate() {
+        if best.is_none_or(|(_, b)| s > b) {
+            best = Some((k, s));
+        }
+    }
+    let Some((k, _)) = best else {
+        return Err(RigidFitError::NoHypothesis {
+            samples: params.ransac_iterations,
+        }
+        .into());
+    };
+    let mut motion = hypotheses[k];
+    for _ in 0..params.refine_rounds {
+        let (a, b) = inlier_pairs(&motion, corr, &targets, &model, params.chi2);
+        match kabsch(&a, &b) {
+            Some(m) => motion = m,
+            // Fewer than 3 inliers: keep the motion that has them.
+            None => break,
+        }
+    }
+    let inliers = count_inliers(&motion, &corr.source, &targets, &model, params.chi2);
+    Ok(RigidFit {
+        motion,
+        inliers,
+        correspondences: n,
+    })
+}
+
+/// The normalised residual `r = √r²` ([`residual_squared`]) of every pixel of frame i under
+/// `motion` (camera i → camera j) with the flow i → j; NaN where the pixel has no depth, its
+/// flow target leaves the image or the rounded target has no depth (the same conditions as
+/// [`correspondences`]).
+pub fn dense_residual(
+    depth_i: &FloatImage,
+    depth_j: &FloatImage,
+    flow: &FlowField,
+    rays: &PixelRays,
+    motion: &Se3,
+    params: &RigidityParams,
+) -> Result<FloatImage, MotionError> {
+    params.validate()?;
+    let pair = Pair::new(depth_i, depth_j, flow, rays, params)?;
+    let cam = rays.camera();
+    let model = Model::new(cam, params);
+    let r: Matrix3<f64> = *motion.rotation.to_rotation_matrix().matrix();
+    let t = motion.translation.vector;
+    let w = cam.width as usize;
+    let mut out = FloatImage::new(cam.width, cam.height);
+    if w == 0 {
+        return Ok(out);
+    }
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            *o = match pair.lift(x as u32, y as u32) {
+                Some(l) => model.r2(&(r * l.a + t), l.bn, l.bz).sqrt() as f32,
+                None => f32::NAN,
+            };
+        }
+    });
+    Ok(out)
+}
+
+/// Combines the dense residuals of the neighbours into P: per pixel the smallest residual
+/// among the neighbours that give one (not NaN), then `P = clamp((r − r0)/(r1 − r0), 0, 1)`;
+/// 0 where no neighbour gives a residual. Returns (P, the combined residual).
+pub fn rigidity_from_residuals(
+    residuals: &[FloatImage],
+    params: &RigidityParams,
+) -> Result<(FloatImage, FloatImage), MotionError> {
+    params.validate()?;
+    let Some(first) = residuals.first() else {
+        return Err(invalid("residuals", "need at least one neighbour"));
+    };
+    let size = first.dimensions();
+    for r in residuals {
+        check_size("residual of a neighbour", size, r.dimensions())?;
+    }
+    let mut combined = FloatImage::from_pixel(size.0, size.1, image::Luma([f32::NAN]));
+    for r in residuals {
+        for (c, &v) in combined.iter_mut().zip(r.iter()) {
+            // f32::min returns the other operand when one is NaN.
+            *c = c.min(v);
+        }
+    }
+    let (r0, span) = (params.r0, params.r1 - params.r0);
+    let mut p = FloatImage::new(size.0, size.1);
+    for (o, &r) in p.iter_mut().zip(combined.iter()) {
+        *o = if r.is_nan() {
+            0.0
+        } else {
+            ((r as f64 - r0) / span).clamp(0.0, 1.0) as f32
+        };
+    }
+    Ok((p, combined))
+}
+
+/// The undistorted ray table of `cam`: the shared one of a distorted camera
+/// ([`pixel_rays`]), else a fresh table of the pinhole rays.
+pub fn camera_rays(cam: &PinholeCamera) -> Arc<PixelRays> {
+    pixel_rays(cam).unwrap_or_else(|| Arc::new(PixelRays::new(cam)))
+}
+
+/// The rigidity cue of `cur` from `neighbours` with DIS flow of preset
+/// [`RigidityParams::flow_preset`] (see [`rigidity_probability_with`]).
+pub fn rigidity_probability(
+    cur: &RigidFrame<'_>,
+    neighbours: &[RigidFrame<'_>],
+    cam: &PinholeCamera,
+    params: &RigidityParams,
+) -> Result<RigidityMaps, MotionError> {
+    let dis = DisFlow::with_preset(params.flow_preset);
+    rigidity_probability_with(cur, neighbours, cam, &dis, params)
+}
+
+/// The rigidity cue of `cur` from `neighbours` with flows from `flow` (current → neighbour):
+/// per neighbour [`correspondences`], [`fit_rigid_motion`] and [`dense_residual`], then
+/// [`rigidity_from_residuals`]. A neighbour whose motion cannot be fitted gives no residual
+/// (its error is in [`RigidityMaps::fits`]); without any residual P is 0 everywhere.
+pub fn rigidity_probability_with(
+    cur: &RigidFrame<'_>,
+    neighbours: &[RigidFrame<'_>],
+    cam: &PinholeCamera,
+    flow: &dyn FlowProvider,
+    params: &RigidityParams,
+) -> Result<RigidityMaps, MotionError> {
+    params.validate()?;
+    let size = (cam.width, cam.height);
+    check_size("grey image", size, cur.gray.dimensions())?;
+    check_size("depth image", size, cur.depth.dimensions())?;
+    for nb in neighbours {
+        check_size("grey image of a neighbour", size, nb.gray.dimensions())?;
+        check_size("depth image of a neighbour", size, nb.depth.dimensions())?;
+    }
+    let rays = camera_rays(cam);
+    type PairOut = (Result<RigidFit, RigidFitError>, Option<FloatImage>);
+    let per_neighbour: Vec<Result<PairOut, MotionError>> = neighbours
+        .par_iter()
+        .map(|nb| {
+            let f = flow.flow(cur.gray, nb.gray)?;
+            let corr = correspondences(cur.depth, nb.depth, &f, &rays, params)?;
+            let fit = match fit_rigid_motion(&corr, cam, params) {
+                Ok(fit) => Ok(fit),
+                Err(MotionError::RigidFit(e)) => Err(e),
+                Err(e) => return Err(e),
+            };
+            let residual = match &fit {
+                Ok(fit) => Some(dense_residual(
+                    cur.depth,
+                    nb.depth,
+                    &f,
+                    &rays,
+                    &fit.motion,
+                    params,
+                )?),
+                Err(_) => None,
+            };
+            Ok((fit, residual))
+        })
+        .collect();
+    let mut fits = Vec::with_capacity(neighbours.len());
+    let mut residuals = Vec::with_capacity(neighbours.len());
+    for r in per_neighbour {
+        let (fit, residual) = r?;
+        fits.push(fit);
+        residuals.extend(residual);
+    }
+    let (p, residual) = if residuals.is_empty() {
+        (
+            FloatImage::new(size.0, size.1),
+            FloatImage::from_pixel(size.0, size.1, image::Luma([f32::NAN])),
+        )
+    } else {
+        rigidity_from_residuals(&residuals, params)?
+    };
+    Ok(RigidityMaps { p, residual, fits })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::metrics::RocAccumulator;
+    use crate::testutil::{small_camera, small_distorted_camera};
+    use nalgebra::{Translation3, UnitQuaternion};
+    use proptest::prelude::*;
+    use rand::Rng;
+    use std::sync::OnceLock;
+
+    fn se3(axis_angle: [f64; 3], t: [f64; 3]) -> Se3 {
+        Se3::from_parts(
+            Translation3::new(t[0], t[1], t[2]),
+            UnitQuaternion::from_scaled_axis(Vector3::from(axis_angle)),
+        )
+    }
+
+    /// Rotation angle (rad) and translation distance between two motions.
+    fn distance(a: &Se3, b: &Se3) -> (f64, f64) {
+        let d = a.inverse() * b;
+        (
+            d.rotation.angle(),
+            (a.translation.vector - b.translation.vector).norm(),
+        )
+    }
+
+    proptest! {
+        #[test]
+        fn prop_kabsch_recovers_a_rigid_transform(
+            axis in prop::array::uniform3(-1.0f64..1.0),
+            angle in 0.0f64..3.1,
+            t in prop::array::uniform3(-5.0f64..5.0),
+            seed in 0u64..10_000,
+            n in 3usize..40,
+        ) {
+            let a = Vector3::from(axis);
+            let w = if a.norm() > 1e-6 { a.normalize() * angle } else { Vector3::zeros() };
+            let truth = se3(w.into(), t);
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let src: Vec<Point3<f64>> = (0..n)
+                .map(|_| Point3::new(
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(0.5..5.0),
+                ))
+                .collect();
+            // Minimal samples must not be degenerate, as RANSAC guarantees.
+            prop_assume!((src[1] - src[0]).cross(&(src[2] - src[0])).norm() > 0.05);
+            let dst: Vec<Point3<f64>> = src.iter().map(|p| truth * p).collect();
+            let est = kabsch(&src, &dst);
+            prop_assert!(est.is_some());
+            if let Some(est) = est {
+                let (dr, dt) = distance(&est, &truth);
+                prop_assert!(dr < 1e-7 && dt < 1e-7, "{dr} {dt}");
+                prop_assert!(est.rotation.to_rotation_matrix().matrix().determinant() > 0.0);
+            }
+        }
+    }
+
+    /// Points in front of the camera inside a 640×480 frustum, moved by `motion`
+    /// and perturbed by at most half a pixel and one σ_z.
+    fn scene_pairs(
+        rng: &mut ChaCha8Rng,
+        n: usize,
+        motion: &Se3,
+        cam: &PinholeCamera,
+        params: &RigidityParams,
+    ) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
+        let mut src = Vec::with_capacity(n);
+        let mut dst = Vec::with_capacity(n);
+        while src.len() < n {
+            let z = rng.random_range(1.0..4.0);
+            let a = Point3::new(
+                rng.random_range(-0.55..0.55) * z,
+                rng.random_range(-0.4..0.4) * z,
+                z,
+            );
+            let b = motion * a;
+            let sz = params.sigma_z_quadratic * b.z * b.z + params.sigma_z_constant;
+            let bz = b.z + rng.random_range(-1.0..1.0) * sz;
+            let bx = b.x / b.z + rng.random_range(-0.5..0.5) / cam.fx;
+            let by = b.y / b.z + rng.random_range(-0.5..0.5) / cam.fy;
+            src.push(a);
+            dst.push(Point3::new(bx * bz, by * bz, bz));
+        }
+        (src, dst)
+    }
+
+    #[test]
+    fn ransac_recovers_the_camera_motion_with_40_percent_rigid_outliers() {
+        let cam = PinholeCamera::tum_fr3();
+        let params = RigidityParams::default();
+        let camera = se3([0.01, -0.02, 0.005], [0.03, -0.01, 0.02]);
+        // The movers share one rigid motion of their own (a walker's 6-7 cm in one frame,
+        // ≥ 8 px at 4 m), so they form a consistent second model that RANSAC must not prefer.
+        let mover = se3([0.0; 3], [0.06, -0.03, 0.04]) * camera;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let (mut src, mut dst) = scene_pairs(&mut rng, 600, &camera, &cam, &params);
+        let (ms, md) = scene_pairs(&mut rng, 400, &mover, &cam, &params);
+        // Interleave so the outliers are not a contiguous block.
+        for (k, (a, b)) in ms.into_iter().zip(md).enumerate() {
+            src.insert(2 * k + 1, a);
+            dst.insert(2 * k + 1, b);
+        }
+        let corr = Correspondences {
+            pixels: vec![[0, 0]; src.len()],
+            source: src,
+            target: dst,
+        };
+        let fit = fit_rigid_motion(&corr, &cam, &params).expect("fits");
+        let (dr, dt) = distance(&fit.motion, &camera);
+        assert!(dr.to_degrees() < 0.05 && dt < 0.003, "{dr} rad, {dt} m");
+        assert_eq!(fit.correspondences, 1000);
+        // Every static pair is an inlier (noise ≤ 0.5 px, 1 σ_z); no mover is.
+        assert!((600..=610).contains(&fit.inliers), "{}", fit.inliers);
+        assert!((fit.inlier_fraction() - 0.6).abs() < 0.011);
+        // The same seed gives the same fit; a different seed the same motion.
+        assert_eq!(fit_rigid_motion(&corr, &cam, &params).unwrap(), fit);
+        let other = RigidityParams { seed: 99, ..params };
+        let fit2 = fit_rigid_motion(&corr, &cam, &other).unwrap();
+        let (dr2, dt2) = distance(&fit2.motion, &fit.motion);
+        assert!(dr2 < 1e-9 && dt2 < 1e-9, "{dr2} {dt2}");
+    }
+
+    #[test]
+    fn residual_squared_follows_its_formula() {
+        let cam = small_camera();
+        let params = RigidityParams::default();
+        let id = Se3::identity();
+        let a = Point3::new(0.2, -0.1, 2.0);
+        assert_eq!(residual_squared(&id, &a, &a, &cam, &params), 0.0);
+        // One pixel along x and one σ_z in depth: r² = 1 + 1 (the ray stays put when the
+        // depth changes, so the pixel error is unchanged).
+        let sz = 1.5e-3 * 4.0 + 0.003;
+        let bz = 2.0 + sz;
+        let b = Point3::new((0.1 + 1.0 / cam.fx) * bz, -0.05 * bz, bz);
+        let r2 = residual_squared(&id, &a, &b, &cam, &params);
+        // σ_z is taken at the target depth.
+        let ez = (2.0 - bz) / (1.5e-3 * bz * bz + 0.003);
+        assert!((r2 - (1.0 + ez * ez)).abs() < 1e-9, "{r2}");
+        // Behind the camera, or a target without depth: infinite.
+        let behind = se3([0.0; 3], [0.0, 0.0, -1.96]);
+        assert_eq!(
+            residual_squared(&behind, &a, &a, &cam, &params),
+            f64::INFINITY
+        );
+        let no_depth = Point3::new(0.0, 0.0, 0.0);
+        assert_eq!(
+            residual_squared(&id, &a, &no_depth, &cam, &params),
+            f64::INFINITY
+        );
+    }
+
+    #[test]
+    fn fits_fail_with_typed_errors() {
+        let cam = small_camera();
+        let params = RigidityParams::default();
+        let pts: Vec<_> = (0..10).map(|k| Point3::new(k as f64, 0.0, 2.0)).collect();
+        let few = Correspondences {
+            source: pts.clone(),
+            target: pts.clone(),
+            pixels: vec![[0, 0]; 10],
+        };
+        assert!(matches!(
+            fit_rigid_motion(&few, &cam, &params),
+            Err(MotionError::RigidFit(
+                RigidFitError::TooFewCorrespondences {
+                    got: 10,
+                    needed: 20
+                }
+            ))
+        ));
+        // Collinear points: every sample is degenerate.
+        let line: Vec<_> = (0..50)
+            .map(|k| Point3::new(0.01 * k as f64, 0.0, 2.0))
+            .collect();
+        let collinear = Correspondences {
+            source: line.clone(),
+            target: line,
+            pixels: vec![[0, 0]; 50],
+        };
+        assert!(matches!(
+            fit_rigid_motion(&collinear, &cam, &params),
+            Err(MotionError::RigidFit(RigidFitError::NoHypothesis {
+                samples: 500
+            }))
+        ));
+        let mut bad = few.clone();
+        bad.target.pop();
+        let p3 = RigidityParams {
+            min_correspondences: 3,
+            ..params.clone()
+        };
+        assert!(matches!(
+            fit_rigid_motion(&bad, &cam, &p3),
+            Err(MotionError::InvalidParam { .. })
+        ));
+    }
+
+    #[test]
+    fn params_default_validate_and_deserialise() {
+        let d = RigidityParams::default();
+        d.validate().unwrap();
+        assert_eq!(
+            (d.stride, d.ransac_iterations, d.chi2, d.r0, d.r1),
+            (4, 500, 27.0, 3.0, 8.0)
+        );
+        assert_eq!(d.flow_preset, Preset::Medium);
+        let parsed: RigidityParams = serde_json::from_str("{}").unwrap();
+        assert_eq!(parsed, d);
+        let parsed: RigidityParams =
+            serde_json::from_str(r#"{"stride": 2, "flow_preset": "fast"}"#).unwrap();
+        assert_eq!((parsed.stride, parsed.flow_preset), (2, Preset::Fast));
+        assert_eq!(parsed.chi2, 27.0);
+        let cases: Vec<(&str, RigidityParams)> = vec![
+            (
+                "stride",
+                RigidityParams {
+                    stride: 0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "min_depth",
+                RigidityParams {
+                    min_depth: f64::NAN,
+                    ..d.clone()
+                },
+            ),
+            (
+                "min_correspondences",
+                RigidityParams {
+                    min_correspondences: 2,
+                    ..d.clone()
+                },
+            ),
+            (
+                "ransac_iterations",
+                RigidityParams {
+                    ransac_iterations: 0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "chi2",
+                RigidityParams {
+                    chi2: 0.0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "sigma_px",
+                RigidityParams {
+                    sigma_px: -1.0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "sigma_z_constant",
+                RigidityParams {
+                    sigma_z_constant: 0.0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "r1",
+                RigidityParams {
+                    r1: 3.0,
+                    ..d.clone()
+                },
+            ),
+            (
+                "offsets",
+                RigidityParams {
+                    offsets: vec![-1, 0],
+                    ..d.clone()
+                },
+            ),
+            (
+                "offsets",
+                RigidityParams {
+                    offsets: vec![],
+                    ..d.clone()
+                },
+            ),
+        ];
+        for (name, p) in cases {
+            match p.validate() {
+                Err(MotionError::InvalidParam { name: got, .. }) => assert_eq!(got, name),
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn correspondences_use_the_undistorted_rays_and_the_subpixel_offset() {
+        let cam = small_distorted_camera();
+        let rays = camera_rays(&cam);
+        let (w, h) = (cam.width, cam.height);
+        let depth = FloatImage::from_fn(w, h, |x, _| image::Luma([1.0 + 0.01 * x as f32]));
+        let mut depth_j = depth.clone();
+        depth_j.put_pixel(12, 0, image::Luma([0.05])); // no usable depth at one target
+        let flow = FlowField::constant(w, h, [0.25, -0.375]);
+        let params = RigidityParams::default();
+        let c = correspondences(&depth, &depth_j, &flow, &rays, &params).unwrap();
+        // Grid rows y = 0 lose their targets (v2 < 0); the last grid column stays inside.
+        assert!(
+            c.pixels
+                .iter()
+                .all(|p| p[1] > 0 && p[0] % 4 == 0 && p[1] % 4 == 0)
+        );
+        assert_eq!(c.len(), (w / 4) as usize * (h / 4 - 1) as usize);
+        for ((a, b), px) in c.source.iter().zip(&c.target).zip(&c.pixels) {
+            let und = cam.undistort_point(&nalgebra::Point2::new(px[0] as f64, px[1] as f64));
+            let z = 1.0 + 0.01 * px[0] as f32;
+            assert!((a.z - z as f64).abs() < 1e-12);
+            assert!((a.x / a.z - (und.x - cam.cx) / cam.fx).abs() < 1e-12);
+            // Target: x + 0.25 rounds to x and y − 0.375 to y, plus the sub-pixel offset.
+            let r = rays.ray(px[0], px[1]).unwrap();
+            assert!((b.x / b.z - (r[0] + 0.25 / cam.fx)).abs() < 1e-12);
+            assert!((b.y / b.z - (r[1] - 0.375 / cam.fy)).abs() < 1e-12);
+            assert!((b.z - z as f64).abs() < 1e-12);
+        }
+        // A target without depth drops the pair.
+        let c2 = correspondences(
+            &depth,
+            &depth_j,
+            &FlowField::constant(w, h, [0.0, 0.0]),
+            &rays,
+            &params,
+        )
+        .unwrap();
+        assert!(!c2.pixels.contains(&[12, 0]) && c2.pixels.contains(&[16, 0]));
+        // Sizes must agree.
+        let small = FloatImage::new(w - 1, h);
+        assert!(matches!(
+            correspondences(&small, &depth_j, &flow, &rays, &params),
+            Err(MotionError::SizeMismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn a_translating_camera_over_a_plane_is_fitted_and_has_no_residual() {
+        // Fronto-parallel plane at 2 m, camera j = camera i shifted: points move by
+        // t = (0.05, 0, 0) in camera coordinates, i.e. a constant flow of fx·0.05/2 px.
+        let cam = small_camera();
+        let rays = camera_rays(&cam);
+        let (w, h) = (cam.width, cam.height);
+        let depth = FloatImage::from_pixel(w, h, image::Luma([2.0]));
+        let du = (cam.fx * 0.05 / 2.0) as f32;
+        let flow = FlowField::constant(w, h, [du, 0.0]);
+        let params = RigidityParams::default();
+        let c = correspondences(&depth, &depth, &flow, &rays, &params).unwrap();
+        let fit = fit_rigid_motion(&c, &cam, &params).unwrap();
+        let truth = se3([0.0; 3], [0.05, 0.0, 0.0]);
+        // A plane leaves rotations about in-plane axes nearly unobservable; the fit still
+        // reproduces every correspondence.
+        assert_eq!(fit.inliers, c.len());
+        let (dr, dt) = distance(&fit.motion, &truth);
+        assert!(dr < 1e-3 && dt < 1e-3, "{dr} {dt}");
+        let r = dense_residual(&depth, &depth, &flow, &rays, &fit.motion, &params).unwrap();
+        for (x, _, v) in r.enumerate_pixels() {
+            let inside = x as f32 + du <= (w - 1) as f32;
+            if inside {
+                assert!(v[0] < 0.05, "{x}: {}", v[0]);
+            } else {
+                assert!(v[0].is_nan());
+            }
+        }
+        // Under a wrong motion the residual is large everywhere it is defined.
+        // (0.25 m of disagreement at 2 m: 10 px.)
+        let wrong = se3([0.0; 3], [-0.2, 0.0, 0.0]);
+        let r = dense_residual(&depth, &depth, &flow, &rays, &wrong, &params).unwrap();
+        assert!(r.iter().filter(|v| !v.is_nan()).all(|&v| v > 8.0));
+    }
+
+    #[test]
+    fn residuals_combine_by_their_minimum_and_ramp() {
+        let params = RigidityParams::default();
+        let nan = f32::NAN;
+        let a = FloatImage::from_raw(6, 1, vec![2.0, 5.5, 10.0, nan, nan, f32::INFINITY]).unwrap();
+        let b = FloatImage::from_raw(6, 1, vec![9.0, 20.0, 4.0, 7.0, nan, nan]).unwrap();
+        let (p, r) = rigidity_from_residuals(&[a.clone(), b], &params).unwrap();
+        assert_eq!(&r.as_raw()[..4], &[2.0, 5.5, 4.0, 7.0]);
+        assert!(r.as_raw()[4].is_nan());
+        assert_eq!(r.as_raw()[5], f32::INFINITY);
+        let want = [0.0, 0.5, 0.2, 0.8, 0.0, 1.0];
+        for (got, want) in p.iter().zip(want) {
+            assert!((got - want).abs() < 1e-6, "{got} {want}");
+        }
+        assert!(matches!(
+            rigidity_from_residuals(&[], &params),
+            Err(MotionError::InvalidParam { .. })
+        ));
+        let other = FloatImage::new(5, 1);
+        assert!(matches!(
+            rigidity_from_residuals(&[a, other], &params),
+            Err(MotionError::SizeMismatch { .. })
+        ));
+    }
+
+    /// Frames 60-64 of a 320×240 `walking_xyz` synthetic sequence (a walker crosses the view
+    /// while another sits down): grey image, depth (m) and motion mask, rendered once for all
+    /// tests. The mask marks mover pixels that move more than 2 cm to the previous or next
+    /// frame 255 and slower mover pixels 128: a one-frame cue at this resolution cannot be
+    /// expected to see a few millimetres of motion (at 2 m, 2 cm are 2.7 px), so the slow ones
+    /// are left out of the score.
+    struct Synth {
+        cam: PinholeCamera,
+        frames: Vec<(GrayImage, FloatImage, GrayImage)>,
+    }
+
+    const SYNTH_FRAMES: usize = 5;
+
+    fn synth() -> &'static Synth {
+        static S: OnceLock<Synth> = OnceLock::new();
+        S.get_or_init(|| {
+            let full = PinholeCamera::tum_fr3();
+            let s = 320.0 / full.width as f64;
+            let cam =
+                PinholeCamera::new(320, 240, full.fx * s, full.fy * s, full.cx * s, full.cy * s);
+            let params = dynapix_synth::SynthParams {
+                preset: dynapix_synth::Preset::WalkingXyz,
+                frames: 100,
+                seed: 0,
+                scene: dynapix_synth::SceneParams::for_width(cam.width),
+                camera: cam.clone(),
+                moving_threshold: 0.02,
+                ..dynapix_synth::SynthParams::default()
+            };
+            let seq = dynapix_synth::Sequence::new(params).expect("sequence");
+            let frames = (60..60 + SYNTH_FRAMES)
+                .into_par_iter()
+                .map(|i| {
+                    let (f, _) = seq.frame(i, None);
+                    let depth = FloatImage::from_fn(cam.width, cam.height, |x, y| {
+                        image::Luma([f.depth.get_pixel(x, y)[0] as f32
+                            / dynapix_synth::sequence::DEPTH_FACTOR])
+                    });
+                    (crate::moving::to_gray(&f.rgb), depth, f.mask)
+                })
+                .collect();
+            Synth { cam, frames }
+        })
+    }
+
+    fn synth_maps(k: usize, params: &RigidityParams) -> RigidityMaps {
+        let s = synth();
+        let frame = |i: usize| RigidFrame {
+            gray: &s.frames[i].0,
+            depth: &s.frames[i].1,
+        };
+        let nbs = [frame(k - 1), frame(k + 1)];
+        rigidity_probability(&frame(k), &nbs, &s.cam, params).expect("maps")
+    }
+
+    #[test]
+    fn rigidity_separates_walkers_from_the_static_scene() {
+        let s = synth();
+        let params = RigidityParams::default();
+        // Fast movers (255) against the static scene (0); slow mover pixels (128) left out.
+        let mut roc = RocAccumulator::new(0.5);
+        // The same maps with the slow mover pixels counted as static.
+        let mut roc_all = RocAccumulator::new(0.5);
+        for k in 1..SYNTH_FRAMES - 1 {
+            let maps = synth_maps(k, &params);
+            for fit in &maps.fits {
+                let fit = fit.as_ref().expect("fit");
+                assert!(fit.inlier_fraction() > 0.5, "{}", fit.inlier_fraction());
+            }
+            let mask = s.frames[k].2.as_raw();
+            let (p, pos): (Vec<f32>, Vec<bool>) = maps
+                .p
+                .iter()
+                .zip(mask)
+                .filter(|(_, m)| **m != 128)
+                .map(|(p, m)| (*p, *m == 255))
+                .unzip();
+            roc.add(&p, &pos);
+            let fast: Vec<bool> = mask.iter().map(|&m| m == 255).collect();
+            roc_all.add(maps.p.as_raw(), &fast);
+            let slow: Vec<bool> = mask.iter().map(|&m| m == 128).collect();
+            let still: Vec<bool> = mask.iter().map(|&m| m == 0).collect();
+            eprintln!(
+                "frame {k}: mean P fast movers {:.3}, slow movers {:.3}, static {:.3}",
+                mean_where(&maps.p, &fast),
+                mean_where(&maps.p, &slow),
+                mean_where(&maps.p, &still),
+            );
+        }
+        let auc = roc.auc().expect("both classes");
+        eprintln!(
+            "rigidity on walking_xyz 320×240: AUC {auc:.3} (slow movers counted static: {:?}), \
+             IoU(P > 0.5) {:?}, fast mover px {}",
+            roc_all.auc(),
+            roc.iou(),
+            roc.positives()
+        );
+        assert!(roc.positives() > 5000, "walkers in view");
+        assert!(auc > 0.85, "AUC {auc}");
+    }
+
+    fn mean_where(p: &FloatImage, mask: &[bool]) -> f64 {
+        let (s, n) = p
+            .iter()
+            .zip(mask)
+            .filter(|(_, m)| **m)
+            .fold((0.0, 0usize), |(s, n), (v, _)| (s + *v as f64, n + 1));
+        s / n.max(1) as f64
+    }
+
+    #[test]
+    fn rigidity_is_deterministic_and_independent_of_the_thread_count() {
+        let params = RigidityParams::default();
+        let bits = |m: &RigidityMaps| -> (Vec<u32>, Vec<u32>) {
+            (
+                m.p.iter().map(|v| v.to_bits()).collect(),
+                m.residual.iter().map(|v| v.to_bits()).collect(),
+            )
+        };
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool")
+                .install(|| synth_maps(2, &params))
+        };
+        let a = run(1);
+        let b = run(2);
+        let c = run(2);
+        assert_eq!(bits(&a), bits(&b));
+        assert_eq!(bits(&b), bits(&c));
+        assert_eq!(a.fits, b.fits);
+    }
+
+    #[test]
+    fn without_neighbours_or_fits_p_is_zero() {
+        let cam = small_camera();
+        let (w, h) = (cam.width, cam.height);
+        let gray = GrayImage::new(w, h);
+        let depth = FloatImage::new(w, h); // no depth anywhere: no correspondences
+        let cur = RigidFrame {
+            gray: &gray,
+            depth: &depth,
+        };
+        let params = RigidityParams::default();
+        let maps = rigidity_probability(&cur, &[cur], &cam, &params).unwrap();
+        assert!(maps.p.iter().all(|&v| v == 0.0));
+        assert!(maps.residual.iter().all(|v| v.is_nan()));
+        assert!(matches!(
+            maps.fits[0],
+            Err(RigidFitError::TooFewCorrespondences { got: 0, .. })
+        ));
+        let maps = rigidity_probability(&cur, &[], &cam, &params).unwrap();
+        assert!(maps.fits.is_empty() && maps.p.iter().all(|&v| v == 0.0));
+        let small = GrayImage::new(w - 1, h);
+        let nb = RigidFrame {
+            gray: &small,
+            depth: &depth,
+        };
+        assert!(matches!(
+            rigidity_probability(&cur, &[nb], &cam, &params),
+            Err(MotionError::SizeMismatch { .. })
+        ));
+    }
+}
