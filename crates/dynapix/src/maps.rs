@@ -29,8 +29,9 @@ use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
-/// the motion algorithms changes their output without changing a parameter.
-pub const MOTION_MAPS_VERSION: u32 = 1;
+/// the motion algorithms changes their output without changing a parameter (2: splatting
+/// through the lens distortion of distorted cameras).
+pub const MOTION_MAPS_VERSION: u32 = 2;
 
 /// The record file of a map folder.
 pub const RECORD_FILE: &str = "motion.json";

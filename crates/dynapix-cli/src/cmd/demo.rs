@@ -39,7 +39,8 @@ pub struct Args {
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "walking_xyz,walking_static,walking_rpy,walking_halfsphere"
+        default_value = "walking_xyz,walking_static,walking_rpy,walking_halfsphere",
+        value_parser = super::synth::preset_names()
     )]
     pub presets: Vec<String>,
     /// DIS preset of the motion maps.

@@ -21,12 +21,16 @@ pub enum Realism {
     Full,
 }
 
+/// The preset names as the closed set of values of `--preset`.
+pub(crate) fn preset_names() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(Preset::ALL.map(|p| p.name()))
+}
+
 /// Arguments of `dynapix synth`.
 #[derive(clap::Args, Debug, Default)]
 pub struct Args {
-    /// Scenario: static, walking_xyz, walking_static, walking_rpy, walking_halfsphere,
-    /// sitting, flying, occlusion, loop.
-    #[arg(long, default_value = "walking_xyz")]
+    /// Scenario.
+    #[arg(long, default_value = "walking_xyz", value_parser = preset_names())]
     pub preset: String,
     /// Number of frames (30 Hz; default 300). With --augment: at most this many frames.
     #[arg(long)]
