@@ -218,15 +218,14 @@ impl Default for PassConfig {
 #[serde(default)]
 pub struct OnlineConfig {
     /// Frames of latency allowed: the pose of frame n is reported when frame n + lookahead
-    /// arrives, and its motion map may use those later frames (0 = no latency).
+    /// arrives, and its background may use those later frames (0 = no latency).
     pub lookahead: usize,
     /// Past frames kept as neighbours for the moving term and as background sources (the
     /// memory bound together with `background_keyframes`).
     pub window: usize,
     /// Past keyframes kept (images and poses) as sources of the reconstructed background.
     pub background_keyframes: usize,
-    /// Offsets of past neighbours used by the moving term (negative, `[-2, -1]`); future
-    /// neighbours `1..=lookahead` are added when a lookahead is allowed.
+    /// Offsets of past neighbours used by the moving term (negative, `[-2, -1]`).
     pub past_offsets: Vec<i64>,
 }
 
@@ -446,7 +445,7 @@ impl Config {
         }
         if self.online.past_offsets.iter().any(|&o| o >= 0) {
             return Err(Error::config(
-                "online.past_offsets must be negative (future neighbours come from lookahead)",
+                "online.past_offsets must be negative (the moving term uses past neighbours only)",
             ));
         }
         if self.online.window == 0 {

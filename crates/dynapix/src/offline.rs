@@ -77,10 +77,9 @@ pub struct OfflineOutput {
 }
 
 impl OfflineOutput {
-    /// The last pass (the run's result).
-    pub fn final_pass(&self) -> &PassOutput {
-        // `run` always produces at least one pass.
-        &self.passes[self.passes.len() - 1]
+    /// The last pass (the run's result; a run always has one).
+    pub fn final_pass(&self) -> Option<&PassOutput> {
+        self.passes.last()
     }
 
     /// The maps of the last weighted pass.
@@ -352,7 +351,10 @@ impl<'a> OfflineRunner<'a> {
                     .cloned()
                     .ok_or_else(|| Error::Input("no maps".into()))?
             } else {
-                let prev = as_written(&passes[passes.len() - 1].trajectory)?;
+                let last = passes
+                    .last()
+                    .ok_or_else(|| Error::Input("no pass".into()))?;
+                let prev = as_written(&last.trajectory)?;
                 let poses = self.poses_for(k, Some(&prev))?;
                 self.maps_for(k, &poses, progress)?
             };
@@ -370,7 +372,7 @@ impl<'a> OfflineRunner<'a> {
             .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
         record["ground_truth_used_at_run_time"] = json!(gt_used);
         record["first_pass"] = first.as_ref().map_or(Value::Null, |f| f.record.clone());
-        record["prob"] = maps[0].record.clone();
+        record["prob"] = maps.first().map_or(Value::Null, |m| m.record.clone());
         record["passes"] = Value::Array(
             maps.iter()
                 .zip(&passes)

@@ -6,13 +6,16 @@
 //! For frame m (processed when frame m + `lookahead` has arrived):
 //! - its pose for splatting is **predicted** from the two latest tracked poses (constant
 //!   velocity, like ORB-SLAM2's motion model), since the system tracks m only after its
-//!   weights exist; future neighbours inside the lookahead are predicted the same way;
+//!   weights exist; the frames inside the lookahead are predicted the same way;
 //! - its **background** is reconstructed ([`dynapix_motion::reconstruct_background`]) from
-//!   frames it has seen: recent frames of the window (every `reconstruct.step`-th) and the
-//!   images of past keyframes, each splatted with the poses the running system gave them;
-//! - its **moving term** uses past neighbours (`online.past_offsets`, with their own
-//!   backgrounds kept from when they were processed) and, with a lookahead, the future frames
-//!   `m + 1 … m + lookahead`;
+//!   frames it has seen: the frames waiting in the lookahead, recent frames of the window
+//!   (every `reconstruct.step`-th) and the images of past keyframes, each splatted with the
+//!   poses the running system gave them (predicted for the waiting frames);
+//! - its **moving term** uses past neighbours (`online.past_offsets`), with the backgrounds
+//!   kept from when they were processed. Future frames as moving-term neighbours (with
+//!   backgrounds reconstructed for them from predicted poses) cost a background per frame of
+//!   lookahead and measured no better on the synth walking presets (walking_xyz with one
+//!   frame of lookahead: 0.055 m against 0.032 m as background sources);
 //! - P = D·M becomes static weights (quantised like the map files) and the SLAM system tracks
 //!   m with them.
 //!
@@ -82,8 +85,11 @@ pub struct FrameResult {
     pub latency_frames: usize,
     /// Mean motion probability of the frame's pixels (0 for ORB-SLAM2).
     pub mean_probability: f32,
-    /// Milliseconds spent on the motion map (background, flows, splats).
+    /// Milliseconds spent on the motion map (background, flows, splats), `background_ms`
+    /// included.
     pub motion_ms: f64,
+    /// Milliseconds spent reconstructing the frame's background.
+    pub background_ms: f64,
     /// Milliseconds spent in SLAM (extraction, tracking, mapping, loop closing).
     pub slam_ms: f64,
 }
@@ -126,9 +132,7 @@ impl OnlineDynaPix {
         }
         let params = config.method.terms().map(|_| {
             let mut p = config.motion_params();
-            let mut offsets = config.online.past_offsets.clone();
-            offsets.extend((1..=config.online.lookahead).map(|k| k as i64));
-            p.offsets = offsets;
+            p.offsets = config.online.past_offsets.clone();
             p
         });
         let vocabulary = load_vocabulary(&config.slam.vocabulary)?;
@@ -223,20 +227,26 @@ impl OnlineDynaPix {
         }
     }
 
-    /// Background sources of a target frame: window frames every `step`, then keyframes.
-    fn background_sources(&self, index: usize) -> Vec<(&RgbdImages, Se3)> {
+    /// Background sources of a target frame: the frames waiting in the lookahead (predicted
+    /// poses), window frames every `step`, then keyframes.
+    fn background_sources(&self, index: usize) -> Vec<(&RgbImage, &DepthImage, Se3)> {
         let step = self.recon.step.max(1);
         let mut out = Vec::new();
+        for (j, f) in self.pending.iter().take(self.lookahead()) {
+            if *j != index {
+                out.push((&f.rgb, &f.depth, self.predict_cw(*j).inverse()));
+            }
+        }
         for p in self.window.iter().rev() {
             let back = index - p.index;
             if back.is_multiple_of(step) && back <= self.recon.radius {
-                out.push((&*p.images, p.pose_wc));
+                out.push((&p.images.rgb, &p.images.depth, p.pose_wc));
             }
         }
         let newest_window = self.window.front().map_or(usize::MAX, |p| p.index);
         for k in self.keyframes.iter().rev() {
             if k.index < newest_window {
-                out.push((&*k.images, k.pose_wc));
+                out.push((&k.images.rgb, &k.images.depth, k.pose_wc));
             }
         }
         out
@@ -248,9 +258,9 @@ impl OnlineDynaPix {
         let sources: Vec<Source> = self
             .background_sources(index)
             .into_iter()
-            .map(|(img, pose)| Source {
-                rgb: &img.rgb,
-                depth: &img.depth,
+            .map(|(rgb, depth, pose)| Source {
+                rgb,
+                depth,
                 t_ts: t_cw * pose,
             })
             .collect();
@@ -279,10 +289,12 @@ impl OnlineDynaPix {
             rgb: frame.rgb,
             depth: frame.depth,
         });
+        let mut background_ms = 0.0;
         let (weights, background, mean_probability) = match &self.params {
             None => (None, None, 0.0),
             Some(params) => {
                 let bg = Arc::new(self.background(index, &images, &t_wc)?);
+                background_ms = t0.elapsed().as_secs_f64() * 1e3;
                 let p = self.motion(index, &images, &bg, &t_wc, params)?;
                 let mean = p.as_image().iter().sum::<f32>() / p.as_image().len().max(1) as f32;
                 let w = p.static_weights();
@@ -329,6 +341,7 @@ impl OnlineDynaPix {
             latency_frames,
             mean_probability,
             motion_ms,
+            background_ms,
             slam_ms,
         })
     }
@@ -401,17 +414,6 @@ impl OnlineDynaPix {
             {
                 owned.push((p.images.clone(), b.clone(), p.pose_wc));
             }
-        }
-        // Future neighbours inside the lookahead: predicted poses, backgrounds reconstructed
-        // from the same past sources.
-        for (j, f) in self.pending.iter().take(self.lookahead()) {
-            let pose = self.predict_cw(*j).inverse();
-            let imgs = Arc::new(RgbdImages {
-                rgb: f.rgb.clone(),
-                depth: f.depth.clone(),
-            });
-            let b = Arc::new(self.background(*j, &imgs, &pose)?);
-            owned.push((imgs, b, pose));
         }
         let nbs: Vec<Neighbour> = owned
             .iter()

@@ -105,12 +105,12 @@ fn weighted_offline_run_beats_orbslam2() {
     let dpx_cfg = Config::default();
     let dpx = offline(&dpx_cfg, &input, &cache);
     let (a_orb, a_dpx) = (
-        ate(&seq, &orb.final_pass().trajectory),
-        ate(&seq, &dpx.final_pass().trajectory),
+        ate(&seq, &orb.final_pass().unwrap().trajectory),
+        ate(&seq, &dpx.final_pass().unwrap().trajectory),
     );
     eprintln!("offline ATE: orbslam2 {a_orb:.4} m, dynapix {a_dpx:.4} m");
-    assert_eq!(orb.final_pass().stats.tracked, FRAMES);
-    assert_eq!(dpx.final_pass().stats.tracked, FRAMES);
+    assert_eq!(orb.final_pass().unwrap().stats.tracked, FRAMES);
+    assert_eq!(dpx.final_pass().unwrap().stats.tracked, FRAMES);
     assert!(a_dpx < 0.5 * a_orb, "dynapix {a_dpx} vs orbslam2 {a_orb}");
     // No ground truth at run time, and the record says where the poses came from.
     assert_eq!(dpx.record["ground_truth_used_at_run_time"], false);
@@ -135,7 +135,10 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     let again = offline(&config, &input, &cache);
     assert_eq!(again.record["prob"]["source"], "cache (key matched)");
     assert_eq!(again.record["first_pass"]["source"], "cache (key matched)");
-    assert_eq!(again.final_pass().trajectory, first.final_pass().trajectory);
+    assert_eq!(
+        again.final_pass().unwrap().trajectory,
+        first.final_pass().unwrap().trajectory
+    );
     let dir1 = again.final_maps().unwrap().folder.dir.clone();
     // A motion parameter changes: other key, maps recomputed.
     let mut changed = config.clone();
@@ -179,14 +182,17 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     let d = offline(&config, &input, &cache);
     assert_eq!(d.record["prob"]["source"], "computed");
     assert!(victim.is_file());
-    assert_eq!(d.final_pass().trajectory, first.final_pass().trajectory);
+    assert_eq!(
+        d.final_pass().unwrap().trajectory,
+        first.final_pass().unwrap().trajectory
+    );
     // Fewer frames: another frame list, another key.
     let mut short = config.clone();
     short.sequence.max_frames = Some(20);
     let short_input = open(&seq, &short);
     let s = offline(&short, &short_input, &cache);
     assert_eq!(s.record["prob"]["source"], "computed");
-    assert_eq!(s.final_pass().status.len(), 20);
+    assert_eq!(s.final_pass().unwrap().status.len(), 20);
 }
 
 #[test]

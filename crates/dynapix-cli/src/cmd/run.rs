@@ -146,7 +146,7 @@ pub struct Args {
     /// poses reported as they are known (written to `trajectory.txt`).
     #[arg(long)]
     pub online: bool,
-    /// Online: frames of latency allowed; the motion map of a frame may use this many later
+    /// Online: frames of latency allowed; the background of a frame may use this many later
     /// frames.
     #[arg(long, requires = "online")]
     pub lookahead: Option<usize>,
@@ -230,7 +230,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             spec.out.join(format!("run_{k}"))
         };
         let out = runner.run_with_seed(spec.config.slam.seed + k as u64, bars)?;
-        let pass = out.final_pass();
+        let pass = out.final_pass().context("the run produced no pass")?;
         write_pass(&dir, pass)?;
         if k == 0 {
             if spec.runs > 1 {
@@ -348,6 +348,7 @@ pub fn execute_online(
         "map_points": online.system().map().num_points(),
         "lookahead_frames": online.lookahead(),
         "motion_ms": per(&|r| r.motion_ms),
+        "background_ms": per(&|r| r.background_ms),
         "slam_ms": per(&|r| r.slam_ms),
         "frame_ms": per(&|r| r.motion_ms + r.slam_ms),
         "image_loading_ms_mean": load_ms / n.max(1) as f64,
