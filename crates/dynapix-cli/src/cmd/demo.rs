@@ -151,6 +151,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     options,
                     out,
                     runs: 1,
+                    first_run: 0,
                 },
                 bars,
             )?;

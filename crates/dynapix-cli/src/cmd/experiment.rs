@@ -137,9 +137,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     || (!seq.join("groundtruth.txt").exists()
                         && dir.join("trajectory.txt").exists());
                 if !done {
-                    let mut config = base.clone().with_method(m);
-                    config.slam.seed = args.seed + k as u64;
-                    jobs.push((input, name, config, dir));
+                    jobs.push((input, name, base.clone().with_method(m), dir, k as u64));
                 }
             }
         }
@@ -154,13 +152,14 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let hidden = Bars::new(true);
     let errors: Vec<String> = pool.install(|| {
         jobs.par_iter()
-            .filter_map(|(input, name, config, dir)| {
+            .filter_map(|(input, name, config, dir, k)| {
                 let spec = RunSpec {
                     input,
                     config: config.clone(),
                     options: options(name),
                     out: dir.clone(),
                     runs: 1,
+                    first_run: *k,
                 };
                 let r = execute(spec, &hidden);
                 let msg = format!("{name} {}", config.method);

@@ -177,8 +177,11 @@ pub struct RunSpec<'a> {
     pub options: RunOptions,
     /// Output folder.
     pub out: PathBuf,
-    /// Runs (seeds `config.slam.seed + k`).
+    /// Runs: run k's weighted pass uses relocalisation seed `config.slam.seed + first_run + k`
+    /// (the first pass and the maps use `config.slam.seed`, so runs share them).
     pub runs: usize,
+    /// Index of the first run (an experiment runs run k alone).
+    pub first_run: u64,
 }
 
 /// Evaluates a written trajectory into `dir` (eval.json, plots); returns the result.
@@ -229,7 +232,8 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         } else {
             spec.out.join(format!("run_{k}"))
         };
-        let out = runner.run_with_seed(spec.config.slam.seed + k as u64, bars)?;
+        let seed = spec.config.slam.seed + spec.first_run + k as u64;
+        let out = runner.run_with_seed(seed, bars)?;
         let pass = out.final_pass().context("the run produced no pass")?;
         write_pass(&dir, pass)?;
         if k == 0 {
@@ -249,7 +253,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         runs.push(stats);
     }
     record["runs"] = json!(spec.runs);
-    record["seed"] = json!(spec.config.slam.seed);
+    record["seed"] = json!(spec.config.slam.seed + spec.first_run);
     record["results"] = json!(runs);
     write_json(&spec.out.join("run.json"), &record)?;
     Ok(outcome)
@@ -419,6 +423,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 options,
                 out: args.out.clone(),
                 runs: args.runs,
+                first_run: 0,
             },
             bars,
         )?
