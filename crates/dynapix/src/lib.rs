@@ -35,6 +35,20 @@
 //! # }
 //! ```
 
+//! P and w are different types, so one cannot stand in for the other:
+//!
+//! ```compile_fail
+//! fn track(weights: &dynapix::StaticWeights) {}
+//! let p = dynapix::MotionProbability::new(image::ImageBuffer::new(4, 4));
+//! track(&p); // a probability is not a weight: convert with `p.static_weights()`
+//! ```
+//!
+//! ```
+//! let p = dynapix::MotionProbability::new(image::ImageBuffer::from_pixel(4, 4, image::Luma([0.25])));
+//! let w = p.static_weights(); // w = 1 − P, quantised like the map files
+//! assert_eq!(w.as_image().get_pixel(0, 0)[0], 0.75);
+//! ```
+
 #![deny(missing_docs)]
 
 pub mod config;

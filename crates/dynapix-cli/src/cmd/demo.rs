@@ -53,12 +53,13 @@ pub struct Args {
 
 /// Fig.-1-style overlay: the frame with the motion probability in red.
 fn overlay(rgb: &RgbImage, prob_png: &Path) -> anyhow::Result<RgbImage> {
-    let raw = dynapix_io::images::read_prob_png_raw(prob_png)?;
-    if raw.dimensions() != rgb.dimensions() {
+    let prob = dynapix_io::images::read_motion_probability(prob_png)?;
+    if prob.dimensions() != rgb.dimensions() {
         bail!("{}: size differs from the frame", prob_png.display());
     }
+    let prob = prob.into_image();
     Ok(RgbImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-        let p = 1.0 - raw.get_pixel(x, y).0[0] as f32 / 1000.0;
+        let p = prob.get_pixel(x, y).0[0];
         let a = 0.7 * p.clamp(0.0, 1.0);
         let c = rgb.get_pixel(x, y).0;
         let g = 0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32;
