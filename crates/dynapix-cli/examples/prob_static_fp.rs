@@ -14,7 +14,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use dynapix_io::images::{read_depth_raw, read_mask, read_prob_png_raw, read_rgb};
+use dynapix_io::images::{read_depth_raw, read_mask, read_motion_probability, read_rgb};
 use nalgebra::UnitQuaternion;
 
 /// Index of the moving pixels in the accumulators.
@@ -107,7 +107,7 @@ fn main() -> anyhow::Result<()> {
             .context("rgb name")?
             .to_string_lossy()
             .into_owned();
-        let prob = read_prob_png_raw(prob_dir.join(format!("{stem}.png")))?;
+        let prob = read_motion_probability(prob_dir.join(format!("{stem}.png")))?.into_image();
         let mask = read_mask(seq.join("mask").join(format!("{stem}.png")))?;
         let depth = read_depth_raw(seq.join(&a.depth))?;
         let rgb = read_rgb(seq.join(&a.rgb))?;
@@ -123,7 +123,7 @@ fn main() -> anyhow::Result<()> {
             if x >= w || y >= h {
                 continue;
             }
-            let p = 1.0 - prob.get_pixel(x, y).0[0] as f32 / 1000.0;
+            let p = prob.get_pixel(x, y).0[0];
             let k = if mask.get_pixel(x, y).0[0] != 0 { 2 } else { 0 };
             kp_counts[k] += 1;
             kp_counts[k + 1] += (p > GAMMA_ADD) as u64;
@@ -152,7 +152,7 @@ fn main() -> anyhow::Result<()> {
         let mut acc = [Acc::default(); 7];
         for y in 0..h {
             for x in 0..w {
-                let p = 1.0 - prob.get_pixel(x, y).0[0] as f32 / 1000.0;
+                let p = prob.get_pixel(x, y).0[0];
                 if mask.get_pixel(x, y).0[0] != 0 {
                     acc[MOV].add(p);
                     continue;

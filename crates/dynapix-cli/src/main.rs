@@ -11,6 +11,9 @@ struct Cli {
     /// More log output (-v info, -vv debug).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     verbose: u8,
+    /// Hide progress bars (every command).
+    #[arg(short, long, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -31,7 +34,8 @@ enum Command {
     Slam(cmd::slam::Args),
     /// Train or import a bag-of-words vocabulary.
     Vocab(cmd::vocab::Args),
-    /// Run a method end to end on a sequence (motion maps if needed, SLAM, evaluation).
+    /// Run a method end to end on a sequence (offline: motion maps if needed, SLAM,
+    /// evaluation; or online with --online).
     Run(cmd::run::Args),
     /// Run many methods × sequences × seeds and build the paper-style table.
     Experiment(cmd::experiment::Args),
@@ -52,16 +56,17 @@ fn main() -> std::process::ExitCode {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
+    let bars = cmd::common::Bars::new(cli.quiet);
     let result = match cli.command {
         Command::Eval(a) => cmd::eval::run(a),
         Command::Flow(a) => cmd::flow::run(a),
-        Command::Synth(a) => cmd::synth::run(a),
-        Command::Motion(a) => cmd::motion::run(a),
-        Command::Slam(a) => cmd::slam::run(a),
-        Command::Vocab(a) => cmd::vocab::run(a),
-        Command::Run(a) => cmd::run::run(a),
-        Command::Experiment(a) => cmd::experiment::run(a),
-        Command::Demo(a) => cmd::demo::run(a),
+        Command::Synth(a) => cmd::synth::run(a, &bars),
+        Command::Motion(a) => cmd::motion::run(a, &bars),
+        Command::Slam(a) => cmd::slam::run(a, &bars),
+        Command::Vocab(a) => cmd::vocab::run(a, &bars),
+        Command::Run(a) => cmd::run::run(a, &bars),
+        Command::Experiment(a) => cmd::experiment::run(a, &bars),
+        Command::Demo(a) => cmd::demo::run(a, &bars),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

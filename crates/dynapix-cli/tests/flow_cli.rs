@@ -78,6 +78,10 @@ fn flow_cli_reports_bad_input() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.png"));
     let o = run("a.png", "slow");
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown DIS preset"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("invalid value 'slow'") && err.contains("ultrafast, fast, medium"),
+        "{err}"
+    );
     assert!(!dir.path().join("o.flo").exists());
 }

@@ -143,7 +143,7 @@ fn writes_reference_format_maps_and_resumes() {
             .unwrap();
     assert_eq!(json["status"], "complete");
     assert_eq!(json["config"]["background"]["source"], "folder");
-    assert_eq!(json["config"]["poses"]["source"], "gt");
+    assert_eq!(json["config"]["poses"]["origin"]["source"], "ground_truth");
     let auc = json["results"]["eval"]["roc_auc"].as_f64().unwrap();
     assert!(auc > 0.9, "auc {auc}");
     assert!(stdout.contains("ROC-AUC"));

@@ -76,7 +76,18 @@ fn run_contract_orbslam2_and_dynapix() {
         assert!(n >= 50, "{method}: only {n} of 60 frames tracked");
         let j = run_json(&out);
         assert_eq!(j["method"], method);
-        assert_eq!(j["ground_truth_used_at_run_time"], false);
+        if method == "orbslam2" {
+            assert_eq!(j["ground_truth_used_at_run_time"], false);
+        } else {
+            // Maps without a motion.json beside them: where their poses came from is unknown.
+            assert!(j["ground_truth_used_at_run_time"].is_null(), "{method}");
+            assert!(
+                j["prob"]["provenance"]
+                    .as_str()
+                    .unwrap()
+                    .contains("unknown")
+            );
+        }
         let ate = j["results"][0]["ate_rmse_m"].as_f64().unwrap();
         assert!(ate.is_finite() && ate < 0.2, "{method}: ATE {ate}");
         if method != "orbslam2" {
@@ -149,7 +160,11 @@ fn dynapix_computes_missing_maps_without_ground_truth() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(tracked_lines(&out.join("trajectory.txt")) >= 20);
     let j = run_json(&out);
-    assert_eq!(j["prob"]["poses"], "own ORB-SLAM2 first pass");
+    assert_eq!(j["ground_truth_used_at_run_time"], false);
+    assert_eq!(j["prob"]["source"], "computed");
+    assert_eq!(j["prob"]["poses"]["source"], "pass");
+    assert_eq!(j["prob"]["poses"]["pass"], 0);
+    assert_eq!(j["first_pass"]["source"], "computed");
     let prob = PathBuf::from(j["prob"]["dir"].as_str().unwrap());
     let n = std::fs::read_dir(&prob)
         .unwrap()
@@ -163,4 +178,99 @@ fn dynapix_computes_missing_maps_without_ground_truth() {
         !seq.join("prob").exists(),
         "the sequence's own prob/ is untouched"
     );
+}
+
+#[test]
+fn online_run_config_file_and_flags_shared_by_every_command() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 30);
+    let out = tmp.path().join("online");
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .args([
+            "--method",
+            "dynapix",
+            "--online",
+            "--lookahead",
+            "1",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(tracked_lines(&out.join("trajectory.txt")) >= 25);
+    assert!(out.join("trajectory_refined.txt").is_file());
+    let j = run_json(&out);
+    assert_eq!(j["schedule"], "online");
+    assert_eq!(j["results"][0]["lookahead_frames"], 1);
+    assert_eq!(j["config"]["online"]["lookahead"], 1);
+    assert!(j["results"][0]["ate_rmse_m"].as_f64().unwrap() < 0.2);
+
+    // A configuration file; flags override it.
+    let cfg = tmp.path().join("c.yaml");
+    std::fs::write(&cfg, "method: no-moving\nmotion:\n  flow: ultrafast\n").unwrap();
+    let out = tmp.path().join("cfg");
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .arg("--config")
+        .arg(&cfg)
+        .args(["--max-frames", "20", "--quiet", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = run_json(&out);
+    assert_eq!(j["method"], "no-moving");
+    assert_eq!(j["config"]["motion"]["flow"], "ultrafast");
+    assert_eq!(j["config"]["sequence"]["max_frames"], 20);
+    assert_eq!(j["sequence"]["frames"], 20);
+    assert_eq!(j["sequence"]["frame_list"]["source"], "association_file");
+    let bad = tmp.path().join("bad.yaml");
+    std::fs::write(&bad, "motion:\n  flw: fast\n").unwrap();
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .arg("--config")
+        .arg(&bad)
+        .arg("--out")
+        .arg(tmp.path().join("x"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("unknown key motion.flw") && err.contains("bad.yaml"),
+        "{err}"
+    );
+
+    // `--camera` is a preset everywhere; the old `motion --camera FILE` names `--settings`.
+    let yaml = seq.join("camera.yaml");
+    for cmd in ["motion", "slam", "run"] {
+        let mut c = Command::new(bin());
+        c.arg(cmd).arg(&seq).arg("--camera").arg(&yaml);
+        if cmd != "motion" {
+            c.arg("--out").arg(tmp.path().join("y"));
+        }
+        let o = c.output().unwrap();
+        assert!(!o.status.success(), "{cmd}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--settings"), "{cmd}: {err}");
+    }
+    // `--quiet` and `--settings` are accepted by every command that reads a sequence.
+    let out = tmp.path().join("slam");
+    let o = Command::new(bin())
+        .arg("slam")
+        .arg(&seq)
+        .arg("--settings")
+        .arg(&yaml)
+        .args(["--max-frames", "10", "--quiet", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(tracked_lines(&out.join("status.txt")), 10);
 }

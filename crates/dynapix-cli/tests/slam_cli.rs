@@ -105,6 +105,8 @@ fn unknown_camera_is_a_clear_error() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("my_sequence");
     std::fs::create_dir_all(&seq).unwrap();
+    std::fs::write(seq.join("rgb.txt"), "1.0 rgb/1.000000.png\n").unwrap();
+    std::fs::write(seq.join("depth.txt"), "1.0 depth/1.000000.png\n").unwrap();
     let out = run_slam(&seq, &tmp.path().join("out"), &[]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);

@@ -58,6 +58,7 @@ impl std::str::FromStr for Preset {
 
 /// Parameters of [`DisFlow`]. `Default` is the `medium` preset.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct DisParams {
     /// Finest pyramid level that is computed (0 = full resolution); finer levels get the
     /// bilinearly upsampled flow.

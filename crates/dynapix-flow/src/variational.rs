@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 /// Parameters of the variational refinement (defaults = OpenCV's DIS/VariationalRefinement).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct VariationalParams {
     /// Outer fixed-point iterations (0 disables the refinement).
     pub fixed_point_iterations: usize,

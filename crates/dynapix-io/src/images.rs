@@ -15,6 +15,7 @@ use image::{DynamicImage, GrayImage, ImageBuffer, Luma, RgbImage};
 
 use crate::atomic::{write_atomic, write_atomic_with};
 use crate::error::{IoError, Result};
+use crate::weights::{MotionProbability, StaticWeights};
 
 /// A depth map in metres; 0 means "no depth".
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -237,20 +238,25 @@ pub fn read_prob_png_raw(path: impl AsRef<Path>) -> Result<Gray16Image> {
 
 /// Reads a reference probability PNG as P = 1 − stored/1000 (see [`read_prob_png_raw`]).
 pub fn read_prob_png(path: impl AsRef<Path>) -> Result<ProbMap> {
-    let raw = read_prob_png_raw(path)?;
-    Ok(ImageBuffer::from_fn(raw.width(), raw.height(), |x, y| {
-        Luma([1.0 - raw.get_pixel(x, y)[0] as f32 / PROB_PNG_SCALE])
-    }))
+    Ok(read_motion_probability(path)?.into_image())
+}
+
+/// Reads a reference probability PNG as a typed [`MotionProbability`].
+pub fn read_motion_probability(path: impl AsRef<Path>) -> Result<MotionProbability> {
+    Ok(MotionProbability::from_stored(&read_prob_png_raw(path)?))
+}
+
+/// Reads a reference probability PNG as the [`StaticWeights`] the SLAM backend uses
+/// (w = stored/1000, as the reference reads it).
+pub fn read_static_weights(path: impl AsRef<Path>) -> Result<StaticWeights> {
+    Ok(StaticWeights::from_stored(&read_prob_png_raw(path)?))
 }
 
 /// Quantises P like the reference: `trunc((1 − P)·1000)` in `f32`, P clamped to [0, 1].
 /// Stored 1000 ⇔ P == 0; P = 0.1 → 900, P = 0.1000001 → 899; stored 0 for P ≳ 0.999
-/// (in `f32`, P = 0.999 already gives 0).
+/// (in `f32`, P = 0.999 already gives 0). The codec is [`MotionProbability::to_stored`].
 pub fn prob_to_stored(prob: &ProbMap) -> Gray16Image {
-    ImageBuffer::from_fn(prob.width(), prob.height(), |x, y| {
-        let p = prob.get_pixel(x, y)[0].clamp(0.0, 1.0);
-        Luma([((1.0 - p) * PROB_PNG_SCALE) as u16])
-    })
+    crate::weights::stored_image(prob)
 }
 
 /// Writes P as a reference probability PNG (see [`prob_to_stored`]), atomically.
@@ -259,6 +265,14 @@ pub fn write_prob_png(path: impl AsRef<Path>, prob: &ProbMap) -> Result<()> {
     let path = path.as_ref();
     check_finite(path, prob)?;
     write_gray16(path, &prob_to_stored(prob))
+}
+
+/// Writes a typed motion probability as a reference probability PNG, atomically (a NaN
+/// probability is an error).
+pub fn write_motion_probability(path: impl AsRef<Path>, prob: &MotionProbability) -> Result<()> {
+    let path = path.as_ref();
+    check_finite(path, prob.as_image())?;
+    write_gray16(path, &prob.to_stored())
 }
 
 fn check_finite(path: &Path, map: &ImageBuffer<Luma<f32>, Vec<f32>>) -> Result<()> {

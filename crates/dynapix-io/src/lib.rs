@@ -17,6 +17,8 @@
 //!   poses converted), or the raw file ([`GtFrame`]).
 //! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`],
 //!   and [`SequenceWriter`] for the DynaPix layout.
+//! - [`weights`]: [`MotionProbability`] P and [`StaticWeights`] w = 1 − P as distinct types,
+//!   with the one 16-bit codec of the reference `prob/*.png` files.
 //! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
 
 #![warn(missing_docs)]
@@ -31,6 +33,7 @@ pub mod settings;
 mod text;
 pub mod trajectory;
 pub mod tum;
+pub mod weights;
 
 pub use atomic::write_atomic;
 pub use datasets::Dataset;
@@ -39,7 +42,10 @@ pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
 };
 pub use images::{DepthImage, Gray16Image, ProbMap};
-pub use sequence::{FrameData, FrameInfo, Layout, Sequence, SequenceOptions, SequenceWriter};
+pub use sequence::{
+    FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions, SequenceWriter,
+};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};
+pub use weights::{MotionProbability, StaticWeights, WeightImage};

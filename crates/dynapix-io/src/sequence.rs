@@ -1,7 +1,8 @@
 //! One `Sequence` type over the three folder layouts dynapix reads (spec §5, design.md §1):
 //!
-//! - **TUM RGB-D**: `rgb.txt` + `depth.txt` (associated like `associate.py`, 0.02 s) or a
-//!   4-column association file, images under `rgb/` and `depth/`, `groundtruth.txt`.
+//! - **TUM RGB-D**: a 4-column association file, else `rgb.txt` + `depth.txt` paired by the
+//!   [`Pairing`] policy (default [`Pairing::Nearest`]: every rgb frame with its nearest depth
+//!   image within 0.02 s), images under `rgb/` and `depth/`, `groundtruth.txt`.
 //! - **DynaPix**: the same lists plus optional per-frame folders `background/` (static
 //!   background), `depth_bg/` (its depth), `prob/` (motion probability, reference PNG or
 //!   lossless PFM) and `mask/` (8-bit, non-zero = dynamic), each file named like the rgb image
@@ -9,6 +10,9 @@
 //! - **GRADE**: numbered frames `rgb/1.png … rgb/N.png`, `depth/i.png` in millimetres,
 //!   `background/`, `depth_bg/`; frame i at t = (i − 1)/30 s unless an association file gives
 //!   the times.
+//!
+//! This is the one reader of a sequence folder: every command and the `dynapix` library see the
+//! same frames, and [`Sequence::frame_list`] says where they came from (recorded in outputs).
 //!
 //! Ground truth is held as camera-to-world poses: the marker poses of a Bonn RGB-D Dynamic
 //! folder (`rgbd_bonn_*`) are converted on opening ([`crate::ground_truth`]).
@@ -58,6 +62,42 @@ pub enum Layout {
     Grade,
 }
 
+/// How `rgb.txt` and `depth.txt` are paired when the folder has no association file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Pairing {
+    /// Every rgb frame with the depth image nearest in time within `max_diff`; a depth image
+    /// may serve two rgb frames ([`tum::associate_nearest`]). No rgb frame is dropped, so the
+    /// tracking rate is measured against the full rgb list. The default.
+    #[default]
+    Nearest,
+    /// One-to-one like the TUM `associate.py` ([`tum::associate_lists`]): rgb frames whose
+    /// nearest depth went to a neighbour are dropped.
+    OneToOne,
+}
+
+/// Where the frame list of a [`Sequence`] came from (recorded in every output).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "source", rename_all = "snake_case")]
+pub enum FrameList {
+    /// A 4-column association file.
+    AssociationFile {
+        /// The file.
+        path: PathBuf,
+    },
+    /// `rgb.txt` + `depth.txt`, paired by `pairing` within `max_diff_s` seconds.
+    Lists {
+        /// The pairing policy.
+        pairing: Pairing,
+        /// Largest rgb/depth time difference (s).
+        max_diff_s: f64,
+        /// rgb frames listed in `rgb.txt`.
+        rgb_listed: usize,
+    },
+    /// Numbered `rgb/1.png …` (GRADE), t = (i − 1)/30 s.
+    Numbered,
+}
+
 /// Options of [`Sequence::open_with`]; `Default` gives the reference values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SequenceOptions {
@@ -66,6 +106,10 @@ pub struct SequenceOptions {
     pub depth_factor: Option<f64>,
     /// Maximal rgb/depth time difference when associating `rgb.txt` and `depth.txt` (0.02 s).
     pub max_diff: f64,
+    /// How `rgb.txt` and `depth.txt` are paired (nearest depth per rgb frame).
+    pub pairing: Pairing,
+    /// An explicit association file (4 columns) instead of the folder's own frame list.
+    pub association_file: Option<PathBuf>,
     /// Maximal gap between two ground-truth poses to interpolate between them (0.05 s).
     pub gt_max_gap: f64,
     /// Folder of the probability maps (named like the rgb images); `None` = `<dir>/prob`.
@@ -78,6 +122,8 @@ impl Default for SequenceOptions {
         Self {
             depth_factor: None,
             max_diff: DEFAULT_MAX_DIFF,
+            pairing: Pairing::Nearest,
+            association_file: None,
             gt_max_gap: DEFAULT_MAX_GAP,
             prob_dir: None,
         }
@@ -138,14 +184,20 @@ pub struct Sequence {
     pub layout: Layout,
     /// The frames in time order.
     pub frames: Vec<FrameInfo>,
+    /// Where the frame list came from.
+    pub frame_list: FrameList,
     /// `groundtruth.txt`, when present, as camera-to-world poses (converted from the file
     /// when [`Self::gt_convention`] says it holds marker poses).
     pub groundtruth: Option<Trajectory>,
     /// What the poses of `groundtruth.txt` are in the file (Bonn: marker body).
     pub gt_convention: GroundTruthConvention,
-    /// Camera settings from `camera.yaml`, the folder's dataset (`rgbd_dataset_freiburgN_*`,
-    /// `rgbd_bonn_*`) or the GRADE layout; `None` when they cannot be told (see [`Sequence::settings`]).
+    /// Camera settings from `camera.yaml` (read leniently: missing keys take the TUM values,
+    /// see [`Sequence::settings_missing_keys`]), the folder's dataset
+    /// (`rgbd_dataset_freiburgN_*`, `rgbd_bonn_*`) or the GRADE layout; `None` when they
+    /// cannot be told (see [`Sequence::settings`]).
     pub settings: Option<Settings>,
+    /// Keys missing from the folder's `camera.yaml` (they took the TUM values).
+    pub settings_missing_keys: Vec<&'static str>,
     /// Depth units per metre used by [`Sequence::load_frame`].
     pub depth_factor: f64,
     /// Maximal ground-truth gap for interpolation (s).
@@ -188,7 +240,7 @@ impl Sequence {
         if !dir.is_dir() {
             return Err(IoError::invalid(&dir, "not a folder"));
         }
-        let pairs = Self::frame_list(&dir, opts)?;
+        let (pairs, frame_list) = Self::read_frame_list(&dir, opts)?;
         if pairs.is_empty() {
             return Err(IoError::invalid(&dir, "the sequence has no frames"));
         }
@@ -242,12 +294,18 @@ impl Sequence {
         } else {
             None
         };
-        let settings = match Settings::for_sequence_dir(&dir) {
-            Ok(s) => Some(s),
-            // A broken camera.yaml must be reported, not replaced by a guess.
-            Err(e) if dir.join(SEQUENCE_SETTINGS_FILE).is_file() => return Err(e),
-            Err(_) if layout == Layout::Grade => Some(Settings::grade()),
-            Err(_) => None,
+        let own = dir.join(SEQUENCE_SETTINGS_FILE);
+        let (settings, settings_missing_keys) = if own.is_file() {
+            // A broken camera.yaml must be reported, not replaced by a guess; short files
+            // (only the intrinsics) are accepted as the commands always did.
+            let (s, missing) = Settings::read_lenient(&own)?;
+            (Some(s), missing)
+        } else {
+            match Settings::for_sequence_dir(&dir) {
+                Ok(s) => (Some(s), Vec::new()),
+                Err(_) if layout == Layout::Grade => (Some(Settings::grade()), Vec::new()),
+                Err(_) => (None, Vec::new()),
+            }
         };
         let depth_factor = match (opts.depth_factor, &settings) {
             (Some(f), _) => f,
@@ -264,29 +322,46 @@ impl Sequence {
             dir,
             layout,
             frames,
+            frame_list,
             groundtruth,
             gt_convention,
             settings,
+            settings_missing_keys,
             depth_factor,
             gt_max_gap: opts.gt_max_gap,
             prob_dir,
         })
     }
 
-    /// The rgb/depth pairs of the folder, as written (paths not yet resolved).
-    fn frame_list(dir: &Path, opts: &SequenceOptions) -> Result<Vec<tum::Association>> {
-        if let Some(f) = ASSOCIATION_FILES
-            .iter()
-            .map(|n| dir.join(n))
-            .find(|p| p.is_file())
-        {
-            return tum::read_associations(f);
+    /// The rgb/depth pairs of the folder, as written (paths not yet resolved), and where
+    /// they came from.
+    fn read_frame_list(
+        dir: &Path,
+        opts: &SequenceOptions,
+    ) -> Result<(Vec<tum::Association>, FrameList)> {
+        if let Some(f) = opts.association_file.clone().or_else(|| {
+            ASSOCIATION_FILES
+                .iter()
+                .map(|n| dir.join(n))
+                .find(|p| p.is_file())
+        }) {
+            let pairs = tum::read_associations(&f)?;
+            return Ok((pairs, FrameList::AssociationFile { path: f }));
         }
         let (rgb_txt, depth_txt) = (dir.join("rgb.txt"), dir.join("depth.txt"));
         if rgb_txt.is_file() || depth_txt.is_file() {
             let rgb = tum::read_list(&rgb_txt)?;
             let depth = tum::read_list(&depth_txt)?;
-            return Ok(tum::associate_lists(&rgb, &depth, 0.0, opts.max_diff));
+            let pairs = match opts.pairing {
+                Pairing::Nearest => tum::associate_nearest(&rgb, &depth, opts.max_diff),
+                Pairing::OneToOne => tum::associate_lists(&rgb, &depth, 0.0, opts.max_diff),
+            };
+            let list = FrameList::Lists {
+                pairing: opts.pairing,
+                max_diff_s: opts.max_diff,
+                rgb_listed: rgb.len(),
+            };
+            return Ok((pairs, list));
         }
         if dir.join("rgb").join("1.png").is_file() {
             let mut out = Vec::new();
@@ -310,7 +385,7 @@ impl Sequence {
                     depth,
                 });
             }
-            return Ok(out);
+            return Ok((out, FrameList::Numbered));
         }
         Err(IoError::invalid(
             dir,
@@ -319,6 +394,36 @@ impl Sequence {
                 ASSOCIATION_FILES.join(", ")
             ),
         ))
+    }
+
+    /// Keeps only the first `n` frames (`n ≥ 1`; more than the sequence has changes nothing).
+    pub fn truncate(&mut self, n: usize) {
+        self.frames.truncate(n.max(1));
+    }
+
+    /// The file name of frame `i`'s rgb image (probability maps and masks are named like it).
+    pub fn rgb_name(&self, i: usize) -> Option<&std::ffi::OsStr> {
+        self.frames.get(i)?.rgb.file_name()
+    }
+
+    /// Loads the rgb image and the depth (metres) of frame `i`, checking that their sizes
+    /// agree; nothing else is read.
+    pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, DepthImage)> {
+        let info = self.info(i)?;
+        images::read_rgbd(&info.rgb, &info.depth, self.depth_factor)
+    }
+
+    /// The files of frame `i`, or an "out of range" error.
+    pub fn info(&self, i: usize) -> Result<&FrameInfo> {
+        self.frames.get(i).ok_or_else(|| {
+            IoError::invalid(
+                &self.dir,
+                format!(
+                    "frame {i} out of range (sequence has {})",
+                    self.frames.len()
+                ),
+            )
+        })
     }
 
     /// Number of frames.
@@ -387,15 +492,7 @@ impl Sequence {
     /// Loads frame `i`: images (depth in metres), optional maps and the interpolated
     /// ground-truth pose. Every image must have the rgb image's size.
     pub fn load_frame(&self, i: usize) -> Result<FrameData> {
-        let info = self.frames.get(i).ok_or_else(|| {
-            IoError::invalid(
-                &self.dir,
-                format!(
-                    "frame {i} out of range (sequence has {})",
-                    self.frames.len()
-                ),
-            )
-        })?;
+        let info = self.info(i)?;
         let rgb = images::read_rgb(&info.rgb)?;
         let size = rgb.dimensions();
         let same = |p: &Path, s: (u32, u32)| images::check_same_size(p, s, &info.rgb, size);
@@ -781,10 +878,24 @@ mod tests {
     fn real_fr1_xyz_sequence() {
         let Some(d) = data_dir() else { return };
         let dir = d.join("tum/rgbd_dataset_freiburg1_xyz");
+        // 300 rgb and 300 depth frames; associate.py (run on the same lists) pairs 294, the
+        // default nearest pairing keeps every rgb frame.
+        let one_to_one = SequenceOptions {
+            pairing: Pairing::OneToOne,
+            ..Default::default()
+        };
+        assert_eq!(Sequence::open_with(&dir, &one_to_one).unwrap().len(), 294);
         let seq = Sequence::open(&dir).unwrap();
         assert_eq!(seq.layout, Layout::Tum);
-        // 300 rgb and 300 depth frames; associate.py (run on the same lists) pairs 294.
-        assert_eq!(seq.len(), 294);
+        assert_eq!(seq.len(), 300);
+        assert_eq!(
+            seq.frame_list,
+            FrameList::Lists {
+                pairing: Pairing::Nearest,
+                max_diff_s: 0.02,
+                rgb_listed: 300
+            }
+        );
         assert_eq!(seq.settings().unwrap(), &Settings::tum1());
         assert_eq!(seq.depth_factor, 5000.0);
         assert_eq!(seq.groundtruth.as_ref().unwrap().len(), 3000);

@@ -18,6 +18,7 @@ use crate::{FloatImage, Mode, MotionError, check_size};
 
 /// Parameters of the reconstruction. `Default`: ±15 frames, every 3rd.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct ReconstructParams {
     /// Largest frame offset used (frames).
     pub radius: usize,

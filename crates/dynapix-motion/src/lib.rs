@@ -10,11 +10,12 @@
 //! - [`moving`]: the moving term M from static/dynamic flow differencing (spec §1.7);
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
-//! - [`pipeline`]: one frame end to end, ablations, and the 16-bit file encoding (spec §1.8);
+//! - [`pipeline`]: one frame end to end and the ablations;
 //! - [`static_depth`]: the static depth of a view from a wide window of frames and the
 //!   geometric cue (nearer than the static scene ⇒ not static; new, see the module);
 //! - [`rigidity`]: a pose-free motion cue, the residual of each pixel against the dominant
 //!   rigid motion to the neighbours found by RANSAC on depth-backed optical flow (new);
+//! - [`sequence`]: every frame of a sequence, frames from a [`FrameLoader`], in parallel chunks;
 //! - [`metrics`]: ROC-AUC, IoU and PSNR used to measure the maps against synthetic ground truth;
 //! - [`noise`]: seeded pose perturbation for robustness experiments.
 //!
@@ -29,6 +30,7 @@ pub mod moving;
 pub mod noise;
 pub mod pipeline;
 pub mod rigidity;
+pub mod sequence;
 pub mod splat;
 pub mod static_depth;
 
@@ -42,12 +44,14 @@ pub use background::{Background, ReconstructParams, Source, Statistic, reconstru
 pub use movable::{Movable, MovableParams, movable};
 
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
-pub use pipeline::{
-    MotionMaps, MotionParams, decode_static_weight, encode_static_weight, motion_probability,
-};
+pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use rigidity::{
     Correspondences, RigidFit, RigidFitError, RigidFrame, RigidityMaps, RigidityParams,
     rigidity_probability, rigidity_probability_with,
+};
+pub use sequence::{
+    Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion,
+    SequenceStats, StaticBackground,
 };
 pub use splat::{SplatParams, Warped, pixel_rays, splat};
 pub use static_depth::{

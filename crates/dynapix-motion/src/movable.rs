@@ -25,6 +25,7 @@ pub enum MinExclusion {
 
 /// Parameters of the movable term. `Default` = reference TUM constants, paper mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct MovableParams {
     /// Lower bound of the f1 clip on the channel-max difference (grey levels).
     pub clip_lo: f32,

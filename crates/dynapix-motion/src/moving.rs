@@ -45,6 +45,7 @@ pub struct Neighbour<'a> {
 
 /// Parameters of the moving term. `Default` = TUM constants, paper mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct MovingParams {
     /// Reference or paper behaviour.
     pub mode: Mode,

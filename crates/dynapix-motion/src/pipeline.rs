@@ -1,10 +1,11 @@
 //! One frame end to end (paper §3.1 "Motion Probability", Eq. 8; spec §1.8 and §1.11):
 //! `P = D ⊙ M`, with the ablations of the paper (no movable term: D = 1; no moving term:
-//! M = 1), and the reference's 16-bit encoding of the static weight `(1 − P)·1000`.
+//! M = 1). The 16-bit file encoding of the static weight `(1 − P)·1000` lives in
+//! `dynapix_io::weights` (one codec).
 
 use dynapix_flow::FlowProvider;
 use dynapix_geometry::PinholeCamera;
-use image::{ImageBuffer, Luma};
+use image::Luma;
 use serde::{Deserialize, Serialize};
 
 use crate::movable::{MovableParams, movable};
@@ -14,6 +15,7 @@ use crate::{FloatImage, Mode, MotionError, Variant, check_size};
 
 /// All parameters of the motion probability. `Default` = TUM variant, paper mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct MotionParams {
     /// Reference or paper behaviour.
     pub mode: Mode,
@@ -123,39 +125,11 @@ pub fn motion_probability(
     Ok(MotionMaps { p, d, m })
 }
 
-/// The reference file encoding: `uint16((1 − P)·1000)`, truncated toward zero (computed in
-/// `f32`, so P = 0.1 gives 900 as in the reference, spec §1.8).
-pub fn encode_static_weight(p: &FloatImage) -> ImageBuffer<Luma<u16>, Vec<u16>> {
-    let mut out = ImageBuffer::new(p.width(), p.height());
-    for (o, v) in out.iter_mut().zip(p.iter()) {
-        *o = ((1.0 - v.clamp(0.0, 1.0)) * 1000.0) as u16;
-    }
-    out
-}
-
-/// Inverse of [`encode_static_weight`] (up to its truncation): `P = 1 − w/1000`.
-pub fn decode_static_weight(w: &ImageBuffer<Luma<u16>, Vec<u16>>) -> FloatImage {
-    let mut out = FloatImage::new(w.width(), w.height());
-    for (o, v) in out.iter_mut().zip(w.iter()) {
-        *o = (1.0 - *v as f32 / 1000.0).clamp(0.0, 1.0);
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::testutil::{BlockFlow, Scene, small_camera};
     use dynapix_geometry::Se3;
-
-    #[test]
-    fn encoding_truncates_like_the_reference() {
-        let p = FloatImage::from_raw(4, 1, vec![0.0, 0.1, 0.1000001, 1.0]).unwrap();
-        let w = encode_static_weight(&p);
-        assert_eq!(w.as_raw(), &vec![1000, 900, 899, 0]);
-        let back = decode_static_weight(&w);
-        assert!((back.as_raw()[1] - 0.1).abs() < 1e-6);
-    }
 
     #[test]
     fn ablations_and_product() {

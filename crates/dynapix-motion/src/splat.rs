@@ -32,6 +32,7 @@ use crate::{FloatImage, Mode, MotionError, check_size};
 
 /// Parameters of the splatting. `Default` = paper mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SplatParams {
     /// Reference or paper behaviour.
     pub mode: Mode,

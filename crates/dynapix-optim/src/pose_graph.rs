@@ -28,8 +28,9 @@ pub struct PoseGraphEdge {
     pub information: Matrix6<f64>,
 }
 
-/// Parameters of pose-graph optimisation.
-#[derive(Clone, Debug, PartialEq)]
+/// Parameters of pose-graph optimisation (missing serialised fields take the defaults).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PoseGraphParams {
     /// Levenberg–Marquardt iterations (20 in ORB-SLAM2's essential-graph optimisation).
     pub iterations: usize,

@@ -32,7 +32,8 @@ pub struct Observation {
 }
 
 /// How the DynaPix weight enters the cost.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum WeightMode {
     /// Paper: cost Σ w·ρ(rᵀΩr); outlier tests on the unweighted χ².
     #[default]
@@ -41,8 +42,11 @@ pub enum WeightMode {
     Reference,
 }
 
-/// Parameters of pose-only optimisation (ORB-SLAM2 `PoseOptimization` defaults).
-#[derive(Clone, Debug, PartialEq)]
+/// Parameters of pose-only optimisation (ORB-SLAM2 `PoseOptimization` defaults). Missing
+/// fields of a serialised form take the defaults; `weight_mode` is not serialised (callers
+/// derive it from their weighting behaviour, see `dynapix-slam`'s `DynaPixParams`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PoseOnlyParams {
     /// Outlier-classification rounds (4).
     pub rounds: usize,
@@ -54,7 +58,8 @@ pub struct PoseOnlyParams {
     pub chi2_stereo: f64,
     /// Rounds that use the Huber kernel (the first 3; the last round is non-robust).
     pub robust_rounds: usize,
-    /// Weight handling.
+    /// Weight handling (set by the caller from its weighting behaviour; not serialised).
+    #[serde(skip)]
     pub weight_mode: WeightMode,
     /// Include observations without depth as mono edges (true in ORB-SLAM2 and paper mode).
     pub use_mono: bool,
@@ -128,8 +133,11 @@ pub struct BaProblem {
     pub edges: Vec<BaEdge>,
 }
 
-/// Parameters of bundle adjustment (ORB-SLAM2 `LocalBundleAdjustment` defaults).
-#[derive(Clone, Debug, PartialEq)]
+/// Parameters of bundle adjustment (ORB-SLAM2 `LocalBundleAdjustment` defaults). Missing
+/// fields of a serialised form take the defaults; `weight_mode` and `weight_clamp` are not
+/// serialised (callers derive them from their weighting behaviour).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct BaParams {
     /// LM iterations with the Huber kernel (5).
     pub iterations_robust: usize,
@@ -141,9 +149,12 @@ pub struct BaParams {
     pub chi2_mono: f64,
     /// χ² threshold of stereo edges (7.815).
     pub chi2_stereo: f64,
-    /// Weight handling.
+    /// Weight handling (set by the caller from its weighting behaviour; not serialised).
+    #[serde(skip)]
     pub weight_mode: WeightMode,
-    /// Clamp of weights before use, e.g. `Some((0.9, 1.0))` (paper: [1 − γ_del, 1]).
+    /// Clamp of weights before use, e.g. `Some((0.9, 1.0))` (paper: [1 − γ_del, 1]); set by
+    /// the caller from its weighting behaviour, not serialised.
+    #[serde(skip)]
     pub weight_clamp: Option<(f64, f64)>,
 }
 

@@ -14,14 +14,15 @@
 //! - Fine optimisation: weights clamped to [1 − γ_del, 1] ([`ba_weight_clamp`]), outlier tests
 //!   on unweighted residuals (`paper`, via [`dynapix_optim::WeightMode::Paper`]).
 
-use dynapix_optim::WeightMode;
+use dynapix_optim::{BaParams, PoseOnlyParams, WeightMode};
 
 use crate::frame::Frame;
 use crate::map::{Map, MapPointId};
 use crate::system::SystemParams;
 
 /// Which DynaPix behaviour the backend follows.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Weighting {
     /// Plain ORB-SLAM2: weights ignored (all observations weight 1), no gates, no deletion.
     Off,
@@ -35,7 +36,8 @@ pub enum Weighting {
 }
 
 /// How a map point's motion probability follows its observations.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum ProbUpdate {
     /// Exponential moving average `p ← (1 − α)·p + α·P_obs`.
     Ema {
@@ -62,7 +64,13 @@ pub enum BirthSource {
 }
 
 /// All DynaPix thresholds of the backend. `Default` = paper mode with the paper's values.
-#[derive(Clone, Debug, PartialEq)]
+///
+/// This is the one place the SLAM system keeps its DynaPix behaviour
+/// ([`crate::map::MapParams::dynapix`]): the optimisers' weight handling ([`weight_mode`]) and
+/// the BA weight clamp ([`ba_weight_clamp`]) are derived from it where they are used, never
+/// stored beside it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct DynaPixParams {
     /// Behaviour.
     pub weighting: Weighting,
@@ -187,16 +195,28 @@ pub fn weight_mode(p: &DynaPixParams) -> WeightMode {
     }
 }
 
+/// The pose-only optimisation parameters `base` with the weight handling of `p`.
+pub fn pose_params(base: &PoseOnlyParams, p: &DynaPixParams) -> PoseOnlyParams {
+    PoseOnlyParams {
+        weight_mode: weight_mode(p),
+        ..base.clone()
+    }
+}
+
+/// The bundle-adjustment parameters `base` (local or global BA) with the weight handling and
+/// weight clamp of `p`.
+pub fn ba_params(base: &BaParams, p: &DynaPixParams) -> BaParams {
+    BaParams {
+        weight_mode: weight_mode(p),
+        weight_clamp: ba_weight_clamp(p),
+        ..base.clone()
+    }
+}
+
 impl SystemParams {
-    /// All stages configured for `dynapix` (tracking, local BA and map rules).
+    /// These parameters with the DynaPix behaviour `p` (tracking, local and global BA and the
+    /// map rules all follow [`crate::map::MapParams::dynapix`]).
     pub fn with_dynapix(mut self, p: DynaPixParams) -> Self {
-        let mode = weight_mode(&p);
-        self.tracking.pose.weight_mode = mode;
-        self.mapping.ba.weight_mode = mode;
-        self.mapping.ba.weight_clamp = ba_weight_clamp(&p);
-        // Global BA after a loop uses the same per-edge weights as local BA (spec §2.7).
-        self.loop_closing.correction.ba.weight_mode = mode;
-        self.loop_closing.correction.ba.weight_clamp = ba_weight_clamp(&p);
         self.map.dynapix = p;
         self
     }
@@ -273,6 +293,8 @@ pub fn update_matched_points(map: &mut Map, frame: &mut Frame) -> UpdateStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::map::MapParams;
+    use crate::tracking::TrackingParams;
 
     #[test]
     fn birth_gate_follows_gamma_add_and_masks() {
@@ -328,12 +350,45 @@ mod tests {
     #[test]
     fn clamp_and_modes_configure_the_stages() {
         let s = SystemParams::default().with_dynapix(DynaPixParams::default());
-        let (lo, hi) = s.mapping.ba.weight_clamp.expect("paper mode clamps");
+        let ba = ba_params(&s.mapping.ba, &s.map.dynapix);
+        let (lo, hi) = ba.weight_clamp.expect("paper mode clamps");
         assert!((lo - 0.9).abs() < 1e-6 && hi == 1.0, "[{lo}, {hi}]");
-        assert_eq!(s.mapping.ba.weight_mode, WeightMode::Paper);
+        assert_eq!(ba.weight_mode, WeightMode::Paper);
+        assert_eq!(
+            SystemParams::default(),
+            s,
+            "the default is the paper mode, consistently"
+        );
         let r = SystemParams::default().with_dynapix(DynaPixParams::new(Weighting::Reference));
-        assert_eq!(r.mapping.ba.weight_clamp, None);
-        assert_eq!(r.tracking.pose.weight_mode, WeightMode::Reference);
+        assert_eq!(ba_params(&r.mapping.ba, &r.map.dynapix).weight_clamp, None);
+        assert_eq!(
+            pose_params(&r.tracking.pose, &r.map.dynapix).weight_mode,
+            WeightMode::Reference
+        );
         assert_eq!(r.map.dynapix.weighting, Weighting::Reference);
+        let off = DynaPixParams::new(Weighting::Off);
+        assert_eq!(ba_params(&r.mapping.ba, &off).weight_clamp, None);
+        assert_eq!(
+            ba_params(&r.mapping.ba, &off).weight_mode,
+            WeightMode::Paper
+        );
+    }
+
+    #[test]
+    fn parameters_round_trip_through_json_and_missing_fields_take_defaults() {
+        let mut s = SystemParams::default().with_dynapix(DynaPixParams::new(Weighting::Reference));
+        s.tracking.motion_th = 12.5;
+        s.loop_closing.enabled = false;
+        let text = serde_json::to_string(&s).unwrap();
+        let back: SystemParams = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, s);
+        let partial: SystemParams =
+            serde_json::from_str(r#"{"tracking": {"motion_th": 9.0}}"#).unwrap();
+        assert_eq!(partial.tracking.motion_th, 9.0);
+        assert_eq!(
+            partial.tracking.local_th,
+            TrackingParams::default().local_th
+        );
+        assert_eq!(partial.map, MapParams::default());
     }
 }

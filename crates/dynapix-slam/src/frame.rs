@@ -14,8 +14,9 @@ use crate::vocab::Vocabulary;
 
 /// Depth image in metres (0 = no measurement).
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
-/// Per-pixel DynaPix weight image w = 1 − P in [0, 1].
-pub type WeightImage = ImageBuffer<Luma<f32>, Vec<f32>>;
+/// Per-pixel DynaPix weight image w = 1 − P in [0, 1] (the image inside
+/// [`dynapix_io::StaticWeights`]).
+pub type WeightImage = dynapix_io::WeightImage;
 
 /// Applies a rigid transform to a point given as a vector.
 pub fn transform(t: &Se3, p: &Vector3<f64>) -> Vector3<f64> {

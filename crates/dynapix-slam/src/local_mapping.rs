@@ -16,7 +16,8 @@ use crate::tracking::stereo_camera;
 use crate::vocab::Vocabulary;
 
 /// Local-mapping parameters (ORB-SLAM2 RGB-D defaults).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct LocalMappingParams {
     /// Recent points with found/visible below this are culled (0.25).
     pub cull_found_ratio: f32,
@@ -483,7 +484,8 @@ impl LocalMapper {
             points: pts,
             edges,
         };
-        let result = dynapix_optim::bundle_adjust(&problem, &self.params.ba);
+        let params = crate::dynapix::ba_params(&self.params.ba, &map.params.dynapix);
+        let result = dynapix_optim::bundle_adjust(&problem, &params);
         let mut outliers = 0;
         for (e, &(m, o)) in edge_ref.iter().enumerate() {
             if !result.inlier.get(e).copied().unwrap_or(true) {

@@ -38,7 +38,8 @@ use correct::{CorrectionParams, CorrectionStats, correct_loop};
 use detect::{DetectionParams, LoopDetector};
 
 /// Parameters of loop closing.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct LoopClosingParams {
     /// Run loop closing at all (`--no-loop-closing` turns it off).
     pub enabled: bool,

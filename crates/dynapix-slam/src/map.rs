@@ -301,7 +301,8 @@ pub struct CulledLink {
 }
 
 /// Parameters of the map bookkeeping.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct MapParams {
     /// Minimum shared points for a covisibility edge (15).
     pub covisibility_threshold: usize,

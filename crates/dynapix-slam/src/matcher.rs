@@ -13,7 +13,8 @@ use crate::frame::{Frame, RgbdCamera, ScalePyramid, transform};
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 
 /// Matching thresholds (ORB-SLAM2 constants).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct MatcherParams {
     /// Loose Hamming threshold (`TH_HIGH` = 100).
     pub th_high: u32,

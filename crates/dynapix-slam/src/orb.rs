@@ -539,6 +539,16 @@ pub fn rgb_to_gray_orbslam(img: &RgbImage) -> GrayImage {
     rgb_to_gray(img, GrayConversion::default())
 }
 
+/// ORB-SLAM2's extractor is the system's feature extractor.
+impl crate::system::FeatureExtractor for OrbExtractor {
+    fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        OrbExtractor::extract(self, image)
+    }
+    fn pyramid(&self) -> crate::frame::ScalePyramid {
+        crate::frame::ScalePyramid::new(self.nlevels(), self.scale_factor())
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests;
 

@@ -10,7 +10,9 @@ use dynapix_geometry::Se3;
 use image::GrayImage;
 
 use crate::features::{Descriptor, KeyPoint};
-use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid, WeightImage};
+use dynapix_io::StaticWeights;
+
+use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid};
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::loop_closing::{LoopCloser, LoopClosingParams, LoopEvent};
 use crate::map::{KeyFrameId, Map, MapParams};
@@ -36,7 +38,8 @@ pub trait FeatureExtractor {
 }
 
 /// Parameters of all stages.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SystemParams {
     /// Tracking.
     pub tracking: TrackingParams,
@@ -60,10 +63,43 @@ pub struct FrameInput<'a> {
     pub gray: &'a GrayImage,
     /// Depth in metres (0 = missing), registered to the grey image.
     pub depth: &'a DepthImage,
-    /// Optional DynaPix weight map w = 1 − P (None = all 1).
-    pub weights: Option<&'a WeightImage>,
+    /// Optional DynaPix static weights w = 1 − P (None = all 1).
+    pub weights: Option<&'a StaticWeights>,
     /// Optional DynaPix+ semantic mask (non-zero = dynamic class; gates map-point birth only).
     pub masks: Option<&'a GrayImage>,
+}
+
+/// Why [`System::process`] refused a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum ProcessError {
+    /// A map given with the frame does not have the grey image's size.
+    #[error(
+        "frame {index} (t = {timestamp:.6}): {what} is {got:?}, the grey image is {expected:?}"
+    )]
+    SizeMismatch {
+        /// Index of the frame in the input order.
+        index: u64,
+        /// Timestamp of the frame.
+        timestamp: f64,
+        /// Which input is wrong (`depth`, `weights`, `mask`).
+        what: &'static str,
+        /// The grey image's `(width, height)`.
+        expected: (u32, u32),
+        /// The map's `(width, height)`.
+        got: (u32, u32),
+    },
+    /// The grey image does not have the camera's size.
+    #[error("frame {index} (t = {timestamp:.6}): the image is {got:?}, the camera is {expected:?}")]
+    ImageSize {
+        /// Index of the frame in the input order.
+        index: u64,
+        /// Timestamp of the frame.
+        timestamp: f64,
+        /// The camera's `(width, height)`.
+        expected: (u32, u32),
+        /// The image's `(width, height)`.
+        got: (u32, u32),
+    },
 }
 
 /// Wall-clock time of the steps of one frame, in seconds (measurement only).
@@ -228,18 +264,55 @@ impl<E: FeatureExtractor> System<E> {
         self.tracker.state()
     }
 
+    /// Checks that the depth, weight and mask maps of `input` have the grey image's size, and
+    /// the grey image the camera's (when the camera states one).
+    fn check_sizes(&self, input: &FrameInput<'_>) -> Result<(), ProcessError> {
+        let (index, timestamp) = (self.next_index, input.timestamp);
+        let expected = input.gray.dimensions();
+        let cam = (self.cam.pinhole.width, self.cam.pinhole.height);
+        if cam != (0, 0) && cam != expected {
+            return Err(ProcessError::ImageSize {
+                index,
+                timestamp,
+                expected: cam,
+                got: expected,
+            });
+        }
+        let maps = [
+            ("depth", Some(input.depth.dimensions())),
+            ("weights", input.weights.map(StaticWeights::dimensions)),
+            ("mask", input.masks.map(|m| m.dimensions())),
+        ];
+        for (what, got) in maps {
+            if let Some(got) = got
+                && got != expected
+            {
+                return Err(ProcessError::SizeMismatch {
+                    index,
+                    timestamp,
+                    what,
+                    expected,
+                    got,
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Processes one frame: extraction, tracking, then local mapping and loop closing on a new
-    /// keyframe.
-    pub fn process(&mut self, input: FrameInput<'_>) -> FrameResult {
+    /// keyframe. A depth, weight or mask map of another size than the grey image (or a grey
+    /// image of another size than the camera) is refused before anything changes.
+    pub fn process(&mut self, input: FrameInput<'_>) -> Result<FrameResult, ProcessError> {
+        self.check_sizes(&input)?;
         let index = self.next_index;
         self.next_index += 1;
         let t0 = Instant::now();
         let keep = match (self.static_features_min_weight, input.weights) {
             (Some(th), Some(w)) if w.dimensions() == input.gray.dimensions() => {
                 crate::orb::KeepMask::new(
-                    w.width(),
-                    w.height(),
-                    w.as_raw().iter().map(|&v| !(v < th)).collect(),
+                    w.as_image().width(),
+                    w.as_image().height(),
+                    w.as_image().as_raw().iter().map(|&v| !(v < th)).collect(),
                 )
             }
             _ => None,
@@ -255,7 +328,7 @@ impl<E: FeatureExtractor> System<E> {
             keys,
             descs,
             input.depth,
-            input.weights,
+            input.weights.map(StaticWeights::as_image),
             &self.cam,
             self.bounds,
         );
@@ -307,7 +380,7 @@ impl<E: FeatureExtractor> System<E> {
             relative,
             frozen: None,
         });
-        FrameResult {
+        Ok(FrameResult {
             index,
             timestamp: input.timestamp,
             state: out.state,
@@ -325,7 +398,7 @@ impl<E: FeatureExtractor> System<E> {
             },
             mapping,
             loop_closure,
-        }
+        })
     }
 
     fn freeze_records(&mut self) {
@@ -375,5 +448,67 @@ impl<E: FeatureExtractor> System<E> {
             .into_iter()
             .map(|(_, k)| (k.timestamp, k.pose.inverse()))
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::orb::OrbExtractor;
+    use dynapix_geometry::PinholeCamera;
+
+    fn system() -> System<OrbExtractor> {
+        let pinhole = PinholeCamera::new(64, 48, 50.0, 50.0, 32.0, 24.0);
+        let cam = RgbdCamera::new(pinhole, 40.0, 40.0, 30.0);
+        System::new(OrbExtractor::default(), cam, SystemParams::default())
+    }
+
+    #[test]
+    fn maps_of_the_wrong_size_are_refused_not_ignored() {
+        let mut sys = system();
+        let gray = GrayImage::new(64, 48);
+        let depth = DepthImage::new(64, 48);
+        let small = DepthImage::new(32, 24);
+        let input = |depth, weights, masks| FrameInput {
+            timestamp: 1.0,
+            gray: &gray,
+            depth,
+            weights,
+            masks,
+        };
+        let e = sys.process(input(&small, None, None)).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ProcessError::SizeMismatch {
+                    what: "depth",
+                    got: (32, 24),
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let w = StaticWeights::ones(63, 48);
+        let e = sys.process(input(&depth, Some(&w), None)).unwrap_err();
+        assert!(e.to_string().contains("weights"), "{e}");
+        let m = GrayImage::new(64, 47);
+        let e = sys.process(input(&depth, None, Some(&m))).unwrap_err();
+        assert!(e.to_string().contains("mask"), "{e}");
+        let big = GrayImage::new(128, 96);
+        let e = sys
+            .process(FrameInput {
+                timestamp: 1.0,
+                gray: &big,
+                depth: &DepthImage::new(128, 96),
+                weights: None,
+                masks: None,
+            })
+            .unwrap_err();
+        assert!(matches!(e, ProcessError::ImageSize { .. }), "{e}");
+        // Refused frames change nothing: the next good frame is frame 0.
+        let w = StaticWeights::ones(64, 48);
+        let r = sys.process(input(&depth, Some(&w), None)).unwrap();
+        assert_eq!(r.index, 0);
+        assert_eq!(sys.trajectory().len(), 1);
     }
 }

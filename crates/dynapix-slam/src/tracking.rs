@@ -31,7 +31,8 @@ pub enum TrackingState {
 }
 
 /// Tracking parameters (ORB-SLAM2 RGB-D defaults).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TrackingParams {
     /// Initialisation needs more keypoints than this (500).
     pub init_min_features: usize,
@@ -464,7 +465,8 @@ impl Tracker {
             points,
             observations: obs,
         };
-        let result = dynapix_optim::optimize_pose(&problem, &self.params.pose);
+        let params = crate::dynapix::pose_params(&self.params.pose, &map.params.dynapix);
+        let result = dynapix_optim::optimize_pose(&problem, &params);
         frame.pose = Some(normalized(&result.pose));
         for (k, &i) in idx.iter().enumerate() {
             frame.outlier[i] = !result.inlier.get(k).copied().unwrap_or(false);

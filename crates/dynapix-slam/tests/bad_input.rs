@@ -98,6 +98,7 @@ fn bad_frames_are_lost_then_relocalised_without_panic() {
             weights: None,
             masks: None,
         })
+        .expect("frames of the camera's size")
     };
     // A black frame before initialisation leaves the system uninitialised.
     let r = run(0, &mut sys, 1);

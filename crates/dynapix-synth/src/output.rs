@@ -271,7 +271,13 @@ pub fn augment_sequence(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<usize, SynthError> {
     use crate::augment::{Augmenter, median_depth};
-    let seq = dynapix_io::Sequence::open(seq_dir)?;
+    // One output per depth image (files are named like it), so each depth image may serve
+    // one frame only: pair rgb and depth one-to-one like `associate.py`.
+    let opts = dynapix_io::SequenceOptions {
+        pairing: dynapix_io::Pairing::OneToOne,
+        ..Default::default()
+    };
+    let seq = dynapix_io::Sequence::open_with(seq_dir, &opts)?;
     let settings = seq.settings()?.clone();
     let cam = settings.camera();
     let k = crate::render::Intrinsics::from(&cam);

@@ -1,5 +1,6 @@
 //! `dynapix demo`: the one-command demonstration (README). Generates the synthetic walking
-//! presets (xyz, static, rpy, halfsphere), runs `orbslam2` and `dynapix` on each with no ground
+//! presets (xyz, static, rpy, halfsphere) with the synth library, runs `orbslam2` and
+//! `dynapix` on each, in this process, with no ground
 //! truth at run time (DynaPix's splatting poses come from the ORB-SLAM2 run, which is its own
 //! first pass), prints the paper-style table and writes `report.md` with the trajectory plots,
 //! the ATE over time and a strip of Fig.-1-style probability overlays.
@@ -8,10 +9,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use dynapix::offline::RunOptions;
+use dynapix::{CameraChoice, Config, FlowPreset, Input, Method, PoseSource};
 use dynapix_eval::{SequenceSummary, paper_table};
 use image::{Rgb, RgbImage};
 
-use super::run::{self, Method};
+use super::common::{Bars, evaluate};
+use super::run::{self, RunSpec};
 
 /// Arguments of `dynapix demo`.
 #[derive(clap::Args, Clone, Debug)]
@@ -35,41 +39,27 @@ pub struct Args {
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "walking_xyz,walking_static,walking_rpy,walking_halfsphere"
+        default_value = "walking_xyz,walking_static,walking_rpy,walking_halfsphere",
+        value_parser = super::synth::preset_names()
     )]
     pub presets: Vec<String>,
     /// DIS preset of the motion maps.
-    #[arg(long, default_value = "fast")]
-    pub flow_preset: String,
+    #[arg(long, value_enum, default_value = "fast")]
+    pub flow_preset: FlowPreset,
     /// Use ground-truth poses for the motion maps (the paper's setting).
     #[arg(long)]
     pub oracle_poses: bool,
 }
 
-fn self_cmd(args: &[&std::ffi::OsStr]) -> anyhow::Result<()> {
-    let exe = std::env::current_exe().context("cannot locate the dynapix binary")?;
-    let out = std::process::Command::new(exe)
-        .args(args)
-        .output()
-        .context("cannot start dynapix")?;
-    if !out.status.success() {
-        bail!(
-            "dynapix {:?} failed: {}",
-            args,
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
-    Ok(())
-}
-
 /// Fig.-1-style overlay: the frame with the motion probability in red.
 fn overlay(rgb: &RgbImage, prob_png: &Path) -> anyhow::Result<RgbImage> {
-    let raw = dynapix_io::images::read_prob_png_raw(prob_png)?;
-    if raw.dimensions() != rgb.dimensions() {
+    let prob = dynapix_io::images::read_motion_probability(prob_png)?;
+    if prob.dimensions() != rgb.dimensions() {
         bail!("{}: size differs from the frame", prob_png.display());
     }
+    let prob = prob.into_image();
     Ok(RgbImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-        let p = 1.0 - raw.get_pixel(x, y).0[0] as f32 / 1000.0;
+        let p = prob.get_pixel(x, y).0[0];
         let a = 0.7 * p.clamp(0.0, 1.0);
         let c = rgb.get_pixel(x, y).0;
         let g = 0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32;
@@ -81,8 +71,38 @@ fn overlay(rgb: &RgbImage, prob_png: &Path) -> anyhow::Result<RgbImage> {
     }))
 }
 
+/// Generates `preset` into `seq` with the synth library (what `dynapix synth` does).
+fn synthesize(args: &Args, preset: &str, seq: &Path, bars: &Bars) -> anyhow::Result<()> {
+    use dynapix::Progress;
+    let sa = super::synth::Args {
+        preset: preset.to_string(),
+        frames: Some(args.frames),
+        seed: args.seed,
+        width: Some(args.width),
+        height: Some(args.height),
+        ..super::synth::Args::default()
+    };
+    let p = super::synth::params(&sa)?;
+    std::fs::create_dir_all(seq).with_context(|| format!("creating {}", seq.display()))?;
+    let synth = dynapix_synth::Sequence::new(p.clone())?;
+    let label = format!("synth {preset}");
+    bars.event(dynapix::ProgressEvent::Begin {
+        task: &label,
+        total: p.frames as u64,
+    });
+    let r = dynapix_synth::output::write_sequence(&synth, seq, None, &mut |_| {
+        bars.event(dynapix::ProgressEvent::Step {
+            task: &label,
+            message: "",
+        })
+    });
+    bars.event(dynapix::ProgressEvent::End { task: &label });
+    r.with_context(|| format!("writing sequence into {}", seq.display()))?;
+    Ok(())
+}
+
 /// Runs `dynapix demo`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let t0 = Instant::now();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
@@ -98,86 +118,57 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.frames
         );
         if !seq.join("groundtruth.txt").exists() {
-            self_cmd(&[
-                "synth".as_ref(),
-                "--preset".as_ref(),
-                preset.as_ref(),
-                "--frames".as_ref(),
-                args.frames.to_string().as_ref(),
-                "--seed".as_ref(),
-                args.seed.to_string().as_ref(),
-                "--width".as_ref(),
-                args.width.to_string().as_ref(),
-                "--height".as_ref(),
-                args.height.to_string().as_ref(),
-                "--out".as_ref(),
-                seq.as_os_str(),
-            ])?;
+            synthesize(&args, preset, &seq, bars)?;
         }
+        let base = Config::default();
+        let input = Input::open(&seq, &base.sequence, &CameraChoice::Sequence)?;
+        let stamps: Vec<f64> = dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt"))?
+            .iter()
+            .map(|p| p.0)
+            .collect();
         let mut methods = Vec::new();
+        // The ORB-SLAM2 run is DynaPix's first pass (same system, same seed).
+        let mut first_pass = None;
         for method in [Method::Orbslam2, Method::Dynapix] {
             let out = args.out.join("runs").join(preset).join(method.name());
-            let ra = run::Args {
-                seq_dir: seq.clone(),
-                method,
-                out: out.clone(),
-                oracle_poses: args.oracle_poses,
-                runs: 1,
-                seed: 0,
-                masks: None,
-                weighting: run::WeightingArg::Paper,
-                update: run::UpdateArg::Ema,
-                ema_alpha: 0.2,
-                gamma_add: 0.05,
-                gamma_del: 0.1,
-                cache: None,
-                recompute_prob: false,
-                flow_preset: args.flow_preset.clone(),
-                max_frames: None,
-                settings: None,
-                allow_missing_prob: false,
-                no_loop_closing: false,
-                quiet: false,
-                static_features: None,
-                predicted_frames: 0,
-            };
-            if method == Method::Dynapix && !args.oracle_poses {
-                // The ORB-SLAM2 run is DynaPix's first pass (same system, same seed).
-                let fp = seq.join("dynapix_cache").join("first_pass");
-                std::fs::create_dir_all(&fp)?;
-                let src = args
-                    .out
-                    .join("runs")
-                    .join(preset)
-                    .join("orbslam2")
-                    .join("trajectory.txt");
-                if !fp.join("trajectory.txt").exists() && src.exists() {
-                    std::fs::copy(&src, fp.join("trajectory.txt"))?;
-                }
+            let mut config = base.clone().with_method(method);
+            config.motion.flow = args.flow_preset;
+            if args.oracle_poses {
+                config.motion.poses = PoseSource::GroundTruth;
             }
+            let options = RunOptions {
+                first_pass: if args.oracle_poses {
+                    None
+                } else {
+                    first_pass.clone()
+                },
+                ..Default::default()
+            };
             eprintln!("[{}/{n}] {preset}: {}", i + 1, method.name());
-            let o = run::execute(&ra)?;
-            let r = run::evaluate(
-                &seq,
-                &o.trajectory,
-                &dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt"))?
-                    .iter()
-                    .map(|p| p.0)
-                    .collect::<Vec<_>>(),
+            let o = run::execute(
+                RunSpec {
+                    input: &input,
+                    config,
+                    options,
+                    out,
+                    runs: 1,
+                    first_run: 0,
+                },
+                bars,
             )?;
+            if method == Method::Orbslam2 {
+                first_pass = o.written_trajectory.clone();
+            }
+            let r = evaluate(&seq, &o.trajectory, &stamps)?;
             let rr = r.with_context(|| format!("{preset}: no ground truth"))?;
             methods.push(dynapix_eval::aggregate::summarize(method.name(), vec![rr]));
             if method == Method::Dynapix
                 && let Some(pd) = &o.prob_dir
             {
                 // Middle frame of the sequence for the overlay strip.
-                let mut names: Vec<PathBuf> = std::fs::read_dir(seq.join("rgb"))?
-                    .filter_map(|e| e.ok().map(|e| e.path()))
-                    .collect();
-                names.sort();
-                if let Some(f) = names.get(names.len() / 2)
-                    && let Some(name) = f.file_name()
-                {
+                let mid = input.len() / 2;
+                let f = &input.sequence.frames[mid].rgb;
+                if let Some(name) = input.map_name(mid) {
                     let rgb = dynapix_io::images::read_rgb(f)?;
                     match overlay(&rgb, &pd.join(name)) {
                         Ok(ov) => strip.push((rgb, ov)),

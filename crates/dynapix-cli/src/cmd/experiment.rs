@@ -1,19 +1,21 @@
 //! `dynapix experiment`: every method × sequence × run, then the paper-style table (spec §4.4:
 //! per sequence mean ± std over runs of ATE RMSE and tracking rate, Average row, ATR) as
-//! Markdown, CSV and JSON. Motion maps are computed first (once per sequence and probability
-//! variant, sequentially, into each sequence's cache); the SLAM runs then go in parallel
-//! (`--jobs`). Resumable: a run whose `eval.json` (or, without ground truth, `trajectory.txt`)
-//! exists is not repeated. Run k uses seed `seed + k`; each run folder holds its trajectory,
-//! evaluation and plots (top view, ATE over time).
+//! Markdown, CSV and JSON. First passes and motion maps are prepared first (once per sequence
+//! and probability variant, sequentially, into each sequence's cache); the SLAM runs then go
+//! in parallel (`--jobs`), all in this process. Resumable: a run whose `eval.json` (or,
+//! without ground truth, `trajectory.txt`) exists is not repeated. Run k uses seed `seed + k`;
+//! each run folder holds its trajectory, evaluation, plots and `run.json`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::{CameraChoice, Config, Input, Method, Progress, ProgressEvent};
 use dynapix_eval::{RunResult, SequenceSummary, paper_table};
-use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
-use super::run::{self, Method};
+use super::common::Bars;
+use super::run::{MethodArgs, RunSpec, execute};
 
 /// Arguments of `dynapix experiment`.
 #[derive(clap::Args, Clone, Debug)]
@@ -21,9 +23,14 @@ pub struct Args {
     /// Sequence folders (comma separated or repeated).
     #[arg(long, value_delimiter = ',', num_args = 1.., required = true)]
     pub sequences: Vec<PathBuf>,
-    /// Methods: orbslam2, dynapix, dynapix+, no-movable, no-moving, threshold.
-    #[arg(long, value_delimiter = ',', default_value = "orbslam2,dynapix")]
-    pub methods: Vec<String>,
+    /// Methods (comma separated).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "orbslam2,dynapix"
+    )]
+    pub methods: Vec<Method>,
     /// Runs per method and sequence.
     #[arg(long, default_value_t = 1)]
     pub runs: usize,
@@ -33,21 +40,12 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
-    /// Ground-truth poses for the motion maps (the paper's setting).
-    #[arg(long)]
-    pub oracle_poses: bool,
+    /// Method flags (applied to every method).
+    #[command(flatten)]
+    pub m: MethodArgs,
     /// Runs in parallel.
     #[arg(long, default_value_t = 2)]
     pub jobs: usize,
-    /// DIS preset of the motion maps.
-    #[arg(long, default_value = "fast")]
-    pub flow_preset: String,
-    /// Weighting behaviour of the DynaPix methods.
-    #[arg(long, value_enum, default_value = "paper")]
-    pub weighting: run::WeightingArg,
-    /// Per-map-point probability update.
-    #[arg(long, value_enum, default_value = "ema")]
-    pub update: run::UpdateArg,
     /// Motion-map cache root (default: `dynapix_cache` inside each sequence; needed for
     /// read-only sequence folders): maps go to `<cache>/<sequence name>/`.
     #[arg(long)]
@@ -55,6 +53,9 @@ pub struct Args {
     /// Process at most this many frames per sequence.
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Configuration file (JSON or YAML); flags override its values.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 fn seq_name(p: &Path) -> String {
@@ -62,33 +63,6 @@ fn seq_name(p: &Path) -> String {
         .ok()
         .and_then(|c| c.file_name().map(|s| s.to_string_lossy().into_owned()))
         .unwrap_or_else(|| p.display().to_string())
-}
-
-fn run_args(a: &Args, seq: &Path, method: Method, out: PathBuf, k: usize) -> run::Args {
-    run::Args {
-        seq_dir: seq.to_path_buf(),
-        method,
-        out,
-        oracle_poses: a.oracle_poses,
-        runs: 1,
-        seed: a.seed + k as u64,
-        masks: None,
-        weighting: a.weighting,
-        update: a.update,
-        ema_alpha: 0.2,
-        gamma_add: 0.05,
-        gamma_del: 0.1,
-        cache: a.cache.as_ref().map(|c| c.join(seq_name(seq))),
-        recompute_prob: false,
-        flow_preset: a.flow_preset.clone(),
-        max_frames: a.max_frames,
-        settings: None,
-        allow_missing_prob: false,
-        no_loop_closing: false,
-        quiet: true,
-        static_features: None,
-        predicted_frames: 0,
-    }
 }
 
 fn read_result(dir: &Path) -> Option<RunResult> {
@@ -108,36 +82,50 @@ fn read_result(dir: &Path) -> Option<RunResult> {
 }
 
 /// Runs `dynapix experiment`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    let methods: Vec<Method> = args
-        .methods
-        .iter()
-        .map(|m| Method::parse(m))
-        .collect::<anyhow::Result<_>>()?;
+    let mut base = Config::load_with(args.config.as_deref(), args.m.mode)?;
+    if let Some(n) = args.max_frames {
+        anyhow::ensure!(n > 0, "--max-frames must be at least 1");
+        base.sequence.max_frames = Some(n);
+    }
+    base.slam.seed = args.seed;
+    args.m.apply(&mut base)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let names: Vec<String> = args.sequences.iter().map(|s| seq_name(s)).collect();
-    // Phase 1: motion maps (and first passes), sequentially, one per probability variant.
-    for (seq, name) in args.sequences.iter().zip(&names) {
+    let inputs: Vec<Input> = args
+        .sequences
+        .iter()
+        .map(|s| {
+            Input::open(s, &base.sequence, &CameraChoice::Sequence)
+                .with_context(|| format!("cannot read the sequence {}", s.display()))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let options = |name: &str| RunOptions {
+        cache_dir: args.cache.as_ref().map(|c| c.join(name)),
+        ..Default::default()
+    };
+    // Phase 1: first passes and motion maps, sequentially, once per probability variant.
+    for (input, name) in inputs.iter().zip(&names) {
         let mut seen = Vec::new();
-        for &m in &methods {
+        for &m in &args.methods {
             let Some(terms) = m.terms() else { continue };
             if seen.contains(&terms) {
                 continue;
             }
             seen.push(terms);
-            eprintln!("{name}: motion maps ({terms})");
-            let ra = run_args(&args, seq, m, args.out.join("prep"), 0);
-            run::prepare_prob(&ra)?;
+            eprintln!("{name}: motion maps ({terms:?})");
+            let config = base.clone().with_method(m);
+            OfflineRunner::new(&config, input, options(name))?.prepare(bars)?;
         }
     }
     // Phase 2: SLAM runs in parallel.
     let mut jobs = Vec::new();
-    for (seq, name) in args.sequences.iter().zip(&names) {
-        for &m in &methods {
+    for ((input, seq), name) in inputs.iter().zip(&args.sequences).zip(&names) {
+        for &m in &args.methods {
             for k in 0..args.runs {
                 let dir = args
                     .out
@@ -149,30 +137,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     || (!seq.join("groundtruth.txt").exists()
                         && dir.join("trajectory.txt").exists());
                 if !done {
-                    jobs.push(run_args(&args, seq, m, dir, k));
+                    jobs.push((input, name, base.clone().with_method(m), dir, k as u64));
                 }
             }
         }
     }
-    let pb = ProgressBar::new(jobs.len() as u64);
-    pb.set_style(
-        ProgressStyle::with_template("runs {bar:30} {pos}/{len} {msg} [{elapsed_precise}]")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    bars.event(ProgressEvent::Begin {
+        task: "runs",
+        total: jobs.len() as u64,
+    });
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.jobs.max(1))
         .build()?;
+    let hidden = Bars::new(true);
     let errors: Vec<String> = pool.install(|| {
         jobs.par_iter()
-            .filter_map(|ra| {
-                let r = run::execute(ra);
-                pb.inc(1);
-                pb.set_message(format!("{} {}", seq_name(&ra.seq_dir), ra.method.name()));
-                r.err().map(|e| format!("{}: {e:#}", ra.out.display()))
+            .filter_map(|(input, name, config, dir, k)| {
+                let spec = RunSpec {
+                    input,
+                    config: config.clone(),
+                    options: options(name),
+                    out: dir.clone(),
+                    runs: 1,
+                    first_run: *k,
+                };
+                let r = execute(spec, &hidden);
+                let msg = format!("{name} {}", config.method);
+                bars.event(ProgressEvent::Step {
+                    task: "runs",
+                    message: &msg,
+                });
+                r.err().map(|e| format!("{}: {e:#}", dir.display()))
             })
             .collect()
     });
-    pb.finish_and_clear();
+    bars.event(ProgressEvent::End { task: "runs" });
     for e in &errors {
         eprintln!("run failed: {e}");
     }
@@ -183,7 +182,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             continue;
         }
         let mut ms = Vec::new();
-        for &m in &methods {
+        for &m in &args.methods {
             let runs: Vec<RunResult> = (0..args.runs)
                 .filter_map(|k| {
                     read_result(

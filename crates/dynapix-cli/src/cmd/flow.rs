@@ -20,9 +20,9 @@ pub struct Args {
     /// Output `.flo` file (flow from A to B).
     #[arg(long)]
     pub out: PathBuf,
-    /// DIS preset: ultrafast, fast or medium (OpenCV's presets).
-    #[arg(long, default_value = "medium")]
-    pub preset: String,
+    /// DIS preset (OpenCV's presets).
+    #[arg(long, value_enum, default_value = "medium")]
+    pub preset: dynapix::FlowPreset,
     /// Also write the Middlebury colour-wheel picture of the flow (PNG).
     #[arg(long)]
     pub viz: Option<PathBuf>,
@@ -49,7 +49,7 @@ fn save_png_atomic(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
 
 /// Runs `dynapix flow`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let preset: Preset = args.preset.parse()?;
+    let preset: Preset = args.preset.preset();
     let a = load_gray(&args.a)?;
     let b = load_gray(&args.b)?;
     if a.dimensions() != b.dimensions() {

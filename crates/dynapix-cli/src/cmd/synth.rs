@@ -10,22 +10,27 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// Sensor realism levels.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, clap::ValueEnum)]
 pub enum Realism {
     /// Exact depth, no noise, no blur.
     Clean,
     /// Kinect-like depth (noise ∝ depth², quantisation, holes) and mild image noise (default).
+    #[default]
     Kinect,
     /// Kinect plus exposure changes and motion blur.
     Full,
 }
 
+/// The preset names as the closed set of values of `--preset`.
+pub(crate) fn preset_names() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(Preset::ALL.map(|p| p.name()))
+}
+
 /// Arguments of `dynapix synth`.
-#[derive(clap::Args, Debug)]
+#[derive(clap::Args, Debug, Default)]
 pub struct Args {
-    /// Scenario: static, walking_xyz, walking_static, walking_rpy, walking_halfsphere,
-    /// sitting, flying, occlusion, loop.
-    #[arg(long, default_value = "walking_xyz")]
+    /// Scenario.
+    #[arg(long, default_value = "walking_xyz", value_parser = preset_names())]
     pub preset: String,
     /// Number of frames (30 Hz; default 300). With --augment: at most this many frames.
     #[arg(long)]
@@ -78,7 +83,8 @@ pub struct Args {
     pub objects: usize,
 }
 
-fn params(args: &Args) -> anyhow::Result<SynthParams> {
+/// The generator parameters of the arguments (the demo uses it too).
+pub(crate) fn params(args: &Args) -> anyhow::Result<SynthParams> {
     let preset: Preset = args.preset.parse()?;
     let mut cam = dynapix_geometry::PinholeCamera::tum_fr3();
     if let Some(w) = args.width {
@@ -135,7 +141,7 @@ fn params(args: &Args) -> anyhow::Result<SynthParams> {
 }
 
 /// Runs `dynapix synth`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
     let p = params(&args)?;
     if args.out.is_none() && args.preview.is_none() && args.bench.is_none() {
         bail!("nothing to do: give --out DIR, --preview OUT.png or --bench N");
@@ -150,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             objects: args.objects,
             ..Default::default()
         };
-        let bar = ProgressBar::new(0);
+        let bar = bars.adopt(ProgressBar::new(0));
         bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} augment [{bar:40}] {pos}/{len} frames, eta {eta}",
@@ -182,7 +188,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let seq = Sequence::new(p.clone())?;
-        let bar = ProgressBar::new(p.frames as u64);
+        let bar = bars.adopt(ProgressBar::new(p.frames as u64));
         bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} synth {msg} [{bar:40}] {pos}/{len} frames, {per_sec}, eta {eta}",

@@ -61,9 +61,9 @@ struct ImportArgs {
 }
 
 /// Runs `dynapix vocab`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
     match args.command {
-        VocabCommand::Train(a) => train(a),
+        VocabCommand::Train(a) => train(a, bars),
         VocabCommand::Import(a) => import(a),
     }
 }
@@ -156,7 +156,7 @@ fn subsample<T: Clone>(items: &[T], n: Option<usize>) -> Vec<T> {
     }
 }
 
-fn train(a: TrainArgs) -> anyhow::Result<()> {
+fn train(a: TrainArgs, bars: &super::common::Bars) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let all = collect_images(&a.images)?;
     let images = subsample(&all, a.max_images);
@@ -167,9 +167,11 @@ fn train(a: TrainArgs) -> anyhow::Result<()> {
         nfeatures: a.nfeatures,
         ..OrbParams::default()
     })?;
-    let bar = ProgressBar::new(images.len() as u64).with_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    let bar = bars.adopt(
+        ProgressBar::new(images.len() as u64).with_style(
+            ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {per_sec} eta {eta}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ),
     );
     bar.set_message("ORB features");
     let descs: Vec<Vec<[u8; 32]>> = images
@@ -190,7 +192,7 @@ fn train(a: TrainArgs) -> anyhow::Result<()> {
         "features extracted in {:.1} s",
         t0.elapsed().as_secs_f64()
     );
-    let spinner = ProgressBar::new_spinner();
+    let spinner = bars.adopt(ProgressBar::new_spinner());
     spinner.set_message(format!(
         "training k={} L={} on {n_desc} descriptors",
         a.k, a.levels

@@ -36,7 +36,8 @@ pub mod global_ba;
 mod tests;
 
 /// Parameters of loop correction (ORB-SLAM2 values).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct CorrectionParams {
     /// Search radius factor of loop fusion, multiplied by the predicted level's scale (4).
     pub fuse_radius: f32,

@@ -39,7 +39,8 @@ use refine::{RefinePair, RefineSettings, refine_relative};
 use solver::{PointPair, RansacSettings, RansacStep, Se3Ransac};
 
 /// Parameters of loop detection; `Default` gives the ORB-SLAM2 values (spec §6.6).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct DetectionParams {
     /// Keyframes (by sequence number) that must follow the last loop, or the map origin,
     /// before detection runs (10).

@@ -150,13 +150,15 @@ fn run_shots(
                 Some(i) => render(&(offset * pose_at(*i))).2,
                 None => DepthImage::new(W, H),
             };
-            system.process(FrameInput {
-                timestamp: n as f64 / 30.0,
-                gray: &gray,
-                depth: &depth,
-                weights: None,
-                masks: None,
-            })
+            system
+                .process(FrameInput {
+                    timestamp: n as f64 / 30.0,
+                    gray: &gray,
+                    depth: &depth,
+                    weights: None,
+                    masks: None,
+                })
+                .expect("frames of the camera's size")
         })
         .collect()
 }

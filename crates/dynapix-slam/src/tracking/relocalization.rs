@@ -18,7 +18,8 @@ use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matcher;
 
 /// Relocalisation parameters (ORB-SLAM2 defaults).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct RelocParams {
     /// Keyframe → frame matching ratio (0.75).
     pub ratio: f32,

@@ -34,14 +34,15 @@ pub struct Output {
     pub propagated_points: usize,
 }
 
-/// The BA parameters of a global BA: `params.ba` weighting and thresholds, one stage of
+/// The BA parameters of a global BA: `params.ba` thresholds with the weighting of the DynaPix
+/// behaviour `dynapix` (the same per-edge weights as local BA, spec §2.7), one stage of
 /// `global_ba_iterations` iterations, kernel per `global_ba_robust`.
-pub fn ba_params(params: &CorrectionParams) -> BaParams {
+pub fn ba_params(params: &CorrectionParams, dynapix: &crate::dynapix::DynaPixParams) -> BaParams {
     BaParams {
         iterations_robust: params.global_ba_iterations,
         iterations_refine: 0,
         robust: params.global_ba_robust,
-        ..params.ba.clone()
+        ..crate::dynapix::ba_params(&params.ba, dynapix)
     }
 }
 
@@ -107,7 +108,7 @@ pub fn run(map: &mut Map, cam: &RgbdCamera, params: &CorrectionParams) -> Output
         points: positions,
         edges,
     };
-    let result = bundle_adjust(&problem, &ba_params(params));
+    let result = bundle_adjust(&problem, &ba_params(params, &map.params.dynapix));
     out.outliers = result.inlier.iter().filter(|&&ok| !ok).count();
 
     for (i, &k) in kfs.iter().enumerate() {

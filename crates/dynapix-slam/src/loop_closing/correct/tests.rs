@@ -420,6 +420,9 @@ fn gba_error_with_moving_weight(w: f32) -> f64 {
         seed: 11,
     };
     let mut s = build(&o);
+    // Paper weighting with γ_del = 1, so the BA weight clamp [1 − γ_del, 1] lets w through
+    // unchanged: this measures the optimiser's weighting itself.
+    s.map.params.dynapix.gamma_del = 1.0;
     global_ba::run(&mut s.map, &s.cam, &CorrectionParams::default());
     let se: f64 = s
         .kfs

@@ -158,13 +158,15 @@ fn run_sequence(
     let mut run = Run::default();
     let mut detect_time = std::time::Duration::ZERO;
     for (t, gray, depth) in frames {
-        let res = system.process(FrameInput {
-            timestamp: t,
-            gray: &gray,
-            depth: &depth,
-            weights: None,
-            masks: None,
-        });
+        let res = system
+            .process(FrameInput {
+                timestamp: t,
+                gray: &gray,
+                depth: &depth,
+                weights: None,
+                masks: None,
+            })
+            .expect("frames of the camera's size");
         if res.reset {
             a.reset();
             b.reset();

@@ -1,0 +1,278 @@
+//! What the subcommands share: the sequence and camera flags (the same meaning in every
+//! command), the configuration file, progress bars for the library's progress callback,
+//! and the files a SLAM pass leaves.
+
+use std::collections::HashMap;
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::Context;
+use clap::builder::{PossibleValue, TypedValueParser};
+use dynapix::slam::PassOutput;
+use dynapix::{CameraChoice, CameraPreset, Config, Input, Progress, ProgressEvent};
+use dynapix_io::trajectory::write_status;
+use dynapix_slam::loop_closing::LoopEvent;
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+/// `--camera PRESET`; a file name is refused with a message naming `--settings` (the old
+/// `motion --camera FILE` spelling).
+#[derive(Clone, Copy, Debug)]
+pub struct CameraParser;
+
+impl TypedValueParser for CameraParser {
+    type Value = CameraPreset;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<Self::Value, clap::Error> {
+        let s = value.to_string_lossy();
+        if let Some(p) = CameraPreset::ALL
+            .into_iter()
+            .find(|p| p.name().eq_ignore_ascii_case(&s))
+        {
+            return Ok(p);
+        }
+        let names: Vec<&str> = CameraPreset::ALL.iter().map(|p| p.name()).collect();
+        let hint = if Path::new(&*s).is_file() || s.ends_with(".yaml") || s.ends_with(".yml") {
+            format!(
+                "`--camera` takes a preset ({}); for a settings file use `--settings {s}`",
+                names.join(", ")
+            )
+        } else {
+            format!(
+                "unknown camera preset {s:?} (expected one of {})",
+                names.join(", ")
+            )
+        };
+        let mut e = clap::Error::raw(clap::error::ErrorKind::InvalidValue, format!("{hint}\n"));
+        e = e.with_cmd(cmd);
+        let _ = arg;
+        Err(e)
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(
+            CameraPreset::ALL
+                .into_iter()
+                .map(|p| PossibleValue::new(p.name())),
+        ))
+    }
+}
+
+/// How the camera is given (the same flags in every command).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct CameraArgs {
+    /// Camera preset (default: the folder's camera.yaml, else tumN for
+    /// rgbd_dataset_freiburgN_* and bonn for rgbd_bonn_*).
+    #[arg(long, value_parser = CameraParser, conflicts_with = "settings")]
+    pub camera: Option<CameraPreset>,
+    /// ORB-SLAM2 settings YAML (Camera.*, ThDepth, DepthMapFactor, ORBextractor.*); missing
+    /// keys take the TUM values, a missing image size the first frame's.
+    #[arg(long, value_name = "YAML")]
+    pub settings: Option<PathBuf>,
+}
+
+impl CameraArgs {
+    /// The library's camera choice.
+    pub fn choice(&self) -> CameraChoice {
+        match (&self.settings, self.camera) {
+            (Some(p), _) => CameraChoice::Settings(p.clone()),
+            (None, Some(c)) => CameraChoice::Preset(c),
+            (None, None) => CameraChoice::Sequence,
+        }
+    }
+}
+
+/// A sequence folder and how to read it (the same flags in every command).
+#[derive(clap::Args, Clone, Debug)]
+pub struct SequenceArgs {
+    /// Sequence folder (an association file, or rgb.txt + depth.txt, or numbered rgb/1.png …).
+    pub seq_dir: PathBuf,
+    /// Camera.
+    #[command(flatten)]
+    pub camera: CameraArgs,
+    /// Association file (4 columns) instead of the folder's frame list; default:
+    /// association.txt / associations.txt / rgbd_assoc.txt / assoc.txt in the folder, else
+    /// every rgb.txt frame with its nearest depth.txt image within 0.02 s.
+    #[arg(long, value_name = "FILE")]
+    pub association: Option<PathBuf>,
+    /// Pair rgb.txt and depth.txt one-to-one like `associate.py` (drops rgb frames whose
+    /// nearest depth went to a neighbour) instead of giving every rgb frame its nearest depth.
+    #[arg(long)]
+    pub unique_association: bool,
+    /// Process at most this many frames.
+    #[arg(long, value_name = "N")]
+    pub max_frames: Option<usize>,
+    /// Configuration file (JSON or YAML, see `dynapix::Config`); flags override its values.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+}
+
+impl SequenceArgs {
+    /// The configuration file's content (or the defaults) in `mode` when given, with the
+    /// sequence flags applied.
+    pub fn base_config(&self, mode: Option<dynapix::Mode>) -> anyhow::Result<Config> {
+        let mut c = Config::load_with(self.config.as_deref(), mode)?;
+        if self.unique_association {
+            c.sequence.pairing = dynapix::Pairing::OneToOne;
+        }
+        if let Some(n) = self.max_frames {
+            anyhow::ensure!(n > 0, "--max-frames must be at least 1");
+            c.sequence.max_frames = Some(n);
+        }
+        Ok(c)
+    }
+
+    /// Opens the sequence with the configuration's sequence options.
+    pub fn open(&self, config: &Config) -> anyhow::Result<Input> {
+        Input::open_with(
+            &self.seq_dir,
+            &config.sequence,
+            &self.camera.choice(),
+            self.association.as_deref(),
+        )
+        .with_context(|| format!("cannot read the sequence {}", self.seq_dir.display()))
+    }
+}
+
+/// Progress bars (indicatif) for the library's progress events; hidden with `--quiet`.
+pub struct Bars {
+    multi: MultiProgress,
+    bars: Mutex<HashMap<String, ProgressBar>>,
+    quiet: bool,
+}
+
+impl Bars {
+    /// Bars on stderr, or none when `quiet`.
+    pub fn new(quiet: bool) -> Self {
+        let multi = MultiProgress::new();
+        if quiet {
+            multi.set_draw_target(ProgressDrawTarget::hidden());
+        }
+        Self {
+            multi,
+            bars: Mutex::new(HashMap::new()),
+            quiet,
+        }
+    }
+
+    /// A bar or spinner made by a command itself, hidden with `--quiet`.
+    pub fn adopt(&self, bar: ProgressBar) -> ProgressBar {
+        if self.quiet {
+            bar.set_draw_target(ProgressDrawTarget::hidden());
+        }
+        bar
+    }
+}
+
+impl Progress for Bars {
+    fn event(&self, e: ProgressEvent<'_>) {
+        let Ok(mut bars) = self.bars.lock() else {
+            return;
+        };
+        match e {
+            ProgressEvent::Begin { task, total } => {
+                let pb = self.multi.add(ProgressBar::new(total));
+                pb.set_style(
+                    ProgressStyle::with_template(
+                        "{prefix:>24} {bar:30} {pos}/{len} {per_sec} {msg} [{elapsed_precise}]",
+                    )
+                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+                );
+                pb.set_prefix(task.to_string());
+                bars.insert(task.to_string(), pb);
+            }
+            ProgressEvent::Step { task, message } => {
+                if let Some(pb) = bars.get(task) {
+                    if !message.is_empty() {
+                        pb.set_message(message.to_string());
+                    }
+                    pb.inc(1);
+                }
+            }
+            ProgressEvent::End { task } => {
+                if let Some(pb) = bars.remove(task) {
+                    pb.finish_and_clear();
+                    self.multi.remove(&pb);
+                }
+            }
+        }
+    }
+}
+
+/// Writes what every SLAM pass leaves in `out`: `trajectory.txt` (TUM, the current estimate
+/// of every tracked frame), `status.txt`, `keyframes.txt` and `loops.txt`.
+pub fn write_pass(out: &Path, pass: &PassOutput) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    pass.trajectory.write_tum(out.join("trajectory.txt"))?;
+    write_status(out.join("status.txt"), &pass.status)?;
+    pass.keyframes.write_tum(out.join("keyframes.txt"))?;
+    write_loops(&out.join("loops.txt"), &pass.loops)
+}
+
+/// Writes the closed loops, one per line: the two keyframes' timestamps, the matches and what
+/// the correction did and took (essential graph and global BA times in ms).
+pub fn write_loops(path: &Path, events: &[LoopEvent]) -> anyhow::Result<()> {
+    let mut s = String::from(
+        "# current_kf_timestamp loop_kf_timestamp matched_points corrected_keyframes fused_points essential_graph_edges essential_graph_ms global_ba_ms\n",
+    );
+    for e in events {
+        let c = &e.correction;
+        s.push_str(&format!(
+            "{:.6} {:.6} {} {} {} {} {:.3} {:.3}\n",
+            e.current_timestamp,
+            e.loop_timestamp,
+            e.matched_points,
+            c.corrected_keyframes,
+            c.fused_points,
+            c.essential_graph_edges,
+            c.essential_graph_seconds * 1e3,
+            c.global_ba_seconds * 1e3,
+        ));
+    }
+    dynapix_io::write_atomic(path, s.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// Writes `value` as pretty JSON, atomically.
+pub fn write_json(path: &Path, value: &serde_json::Value) -> anyhow::Result<()> {
+    dynapix_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// Evaluates `traj` against `seq_dir/groundtruth.txt` as camera poses (Bonn marker poses
+/// converted, like the sequence reader does; ATE RMSE, tracking rate over the frame times
+/// `stamps`); `None` without ground truth.
+pub fn evaluate(
+    seq_dir: &Path,
+    traj: &Path,
+    stamps: &[f64],
+) -> anyhow::Result<Option<dynapix_eval::RunResult>> {
+    let gt_path = seq_dir.join("groundtruth.txt");
+    if !gt_path.exists() {
+        return Ok(None);
+    }
+    let gt = dynapix_eval::files::read_camera_ground_truth(&gt_path)?;
+    let params = dynapix_eval::EvalParams::default();
+    Ok(Some(dynapix_eval::files::evaluate_run_file(
+        &gt,
+        traj,
+        Some(stamps),
+        &params,
+    )))
+}
+
+/// Writes the trajectory top view and the ATE over time of `traj` into `dir`.
+pub fn plots(seq_dir: &Path, traj: &Path, dir: &Path) -> anyhow::Result<()> {
+    let gt = dynapix_eval::files::read_camera_ground_truth(&seq_dir.join("groundtruth.txt"))?;
+    let est = dynapix_eval::files::read_trajectory(traj)?;
+    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default())?;
+    dynapix_eval::plot::write_plots(dir, &ev.ate)?;
+    Ok(())
+}

@@ -1,0 +1,640 @@
+//! The one configuration of a DynaPix run: method, paper/reference mode, sequence reading,
+//! motion maps, SLAM, passes and the online schedule, with the paper's defaults.
+//!
+//! [`Config::mode`] is the one place that says paper or reference: [`Config::new`] builds
+//! every mode-dependent default from it, a configuration file's missing values take the
+//! defaults of the file's `mode`, and [`Config::validate`] refuses nested mode fields (kept in
+//! the parameter structs of the algorithm crates) that disagree with it. The method decides
+//! the rest: which motion terms the maps use and whether the SLAM backend weights
+//! ([`Config::motion_params`], [`Config::system_params`]).
+//!
+//! Files are JSON (`.json`) or YAML (anything else); every section and every parameter
+//! struct is optional field by field, and unknown keys are errors. The whole resolved
+//! configuration is written into `run.json`.
+
+use std::path::{Path, PathBuf};
+
+use dynapix_flow::dis::{DisParams, Preset};
+use dynapix_io::Pairing;
+use dynapix_motion::{Backgrounds, MotionParams, ReconstructParams, Variant};
+use dynapix_slam::dynapix::DynaPixParams;
+use dynapix_slam::system::SystemParams;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::error::{Error, Result};
+use crate::method::{Method, Mode, Terms};
+
+/// The configuration of a run. `Default` = DynaPix in paper mode with the paper's values.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Config {
+    /// Paper or reference behaviour (motion maps and SLAM weighting).
+    pub mode: Mode,
+    /// The method.
+    pub method: Method,
+    /// How the sequence folder is read.
+    pub sequence: SequenceConfig,
+    /// Motion maps.
+    pub motion: MotionConfig,
+    /// The SLAM system.
+    pub slam: SlamConfig,
+    /// Offline passes.
+    pub passes: PassConfig,
+    /// The online (streaming) schedule.
+    pub online: OnlineConfig,
+}
+
+/// How the sequence folder is read (one reader, one association policy).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SequenceConfig {
+    /// Pairing of `rgb.txt` and `depth.txt` (nearest depth for every rgb frame).
+    pub pairing: Pairing,
+    /// Largest rgb/depth time difference (s, 0.02).
+    pub max_diff: f64,
+    /// Use only the first N frames.
+    pub max_frames: Option<usize>,
+}
+
+impl Default for SequenceConfig {
+    fn default() -> Self {
+        Self {
+            pairing: Pairing::Nearest,
+            max_diff: dynapix_io::tum::DEFAULT_MAX_DIFF,
+            max_frames: None,
+        }
+    }
+}
+
+/// DIS optical-flow preset (OpenCV's presets).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum FlowPreset {
+    /// Coarsest and fastest.
+    Ultrafast,
+    /// The motion maps' default.
+    #[default]
+    Fast,
+    /// Finest of the three.
+    Medium,
+}
+
+impl FlowPreset {
+    /// The flow crate's preset.
+    pub fn preset(self) -> Preset {
+        match self {
+            FlowPreset::Ultrafast => Preset::Ultrafast,
+            FlowPreset::Fast => Preset::Fast,
+            FlowPreset::Medium => Preset::Medium,
+        }
+    }
+
+    /// The name on command lines and in records.
+    pub fn name(self) -> &'static str {
+        match self {
+            FlowPreset::Ultrafast => "ultrafast",
+            FlowPreset::Fast => "fast",
+            FlowPreset::Medium => "medium",
+        }
+    }
+}
+
+/// Where the static background of the motion maps comes from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum BackgroundSource {
+    /// `background/` when the sequence has it, else reconstructed.
+    #[default]
+    Auto,
+    /// The sequence's `background/` (and `depth_bg/` when present) folders.
+    Folder,
+    /// Reconstructed from neighbouring frames splatted into the current view.
+    Reconstruct,
+}
+
+/// Poses for splatting in the motion maps.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseSource {
+    /// The system's own first pass (no ground truth at run time; the default).
+    #[default]
+    Own,
+    /// The sequence's `groundtruth.txt` (the paper's oracle setting).
+    GroundTruth,
+    /// A TUM trajectory file.
+    File(PathBuf),
+}
+
+/// Motion-map configuration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MotionConfig {
+    /// The motion-probability parameters (the method may switch a term off).
+    pub params: MotionParams,
+    /// Optical-flow preset.
+    pub flow: FlowPreset,
+    /// Background source.
+    pub background: BackgroundSource,
+    /// Background reconstruction.
+    pub reconstruct: ReconstructParams,
+    /// Poses for splatting (offline runs).
+    pub poses: PoseSource,
+    /// Largest distance (s) from a frame to the nearest pose of a trajectory (0.05).
+    pub max_pose_gap: f64,
+}
+
+/// The bag-of-words vocabulary of the SLAM system.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VocabularyChoice {
+    /// The embedded default (trained on TUM fr1_xyz).
+    #[default]
+    Embedded,
+    /// None: brute-force keyframe matching.
+    None,
+    /// A file (`dynapix vocab` binary format).
+    File(PathBuf),
+}
+
+/// SLAM configuration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SlamConfig {
+    /// Parameters of every stage; the DynaPix behaviour in `params.map.dynapix` follows
+    /// [`Config::mode`] and the method ([`Config::system_params`]).
+    pub params: SystemParams,
+    /// The vocabulary.
+    pub vocabulary: VocabularyChoice,
+    /// Added to the relocalisation seed (run k of `--runs` uses `seed + k`).
+    pub seed: u64,
+}
+
+impl Default for MotionConfig {
+    fn default() -> Self {
+        Config::default().motion
+    }
+}
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        Config::default().slam
+    }
+}
+
+/// The pass that gives the poses of the first motion maps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FirstPass {
+    /// Plain ORB-SLAM2 over the whole sequence.
+    #[default]
+    Orbslam2,
+}
+
+/// Offline passes: first pass → maps → weighted pass, repeated `weighted` times, the maps of
+/// pass k + 1 splatted with the trajectory of pass k.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PassConfig {
+    /// The first pass.
+    pub first: FirstPass,
+    /// Number of weighted passes (1).
+    pub weighted: usize,
+}
+
+impl Default for PassConfig {
+    fn default() -> Self {
+        Self {
+            first: FirstPass::Orbslam2,
+            weighted: 1,
+        }
+    }
+}
+
+/// The online schedule ([`crate::online`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct OnlineConfig {
+    /// Frames of latency allowed: the pose of frame n is reported when frame n + lookahead
+    /// arrives, and its background may use those later frames (0 = no latency).
+    pub lookahead: usize,
+    /// Past frames kept as neighbours for the moving term and as background sources (the
+    /// memory bound together with `background_keyframes`).
+    pub window: usize,
+    /// Past keyframes kept (images and poses) as sources of the reconstructed background.
+    pub background_keyframes: usize,
+    /// Offsets of past neighbours used by the moving term (negative, `[-2, -1]`).
+    pub past_offsets: Vec<i64>,
+}
+
+impl Default for OnlineConfig {
+    fn default() -> Self {
+        Self {
+            lookahead: 0,
+            window: 15,
+            background_keyframes: 8,
+            // Two past neighbours measured better than one on the synth walking presets
+            // (walking_halfsphere 0.018 m vs 0.032 m; BENCHMARKS.md, online mode).
+            past_offsets: vec![-2, -1],
+        }
+    }
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self::new(Mode::Paper)
+    }
+}
+
+impl Config {
+    /// Every default of `mode` (TUM variant of the motion constants), method DynaPix.
+    pub fn new(mode: Mode) -> Self {
+        Self::with_variant(mode, Variant::Tum)
+    }
+
+    /// Every default of `mode` with the motion constants of `variant`.
+    pub fn with_variant(mode: Mode, variant: Variant) -> Self {
+        Self {
+            mode,
+            method: Method::Dynapix,
+            sequence: SequenceConfig::default(),
+            motion: MotionConfig {
+                params: MotionParams::new(variant, mode.motion()),
+                flow: FlowPreset::Fast,
+                background: BackgroundSource::Auto,
+                reconstruct: ReconstructParams::default(),
+                poses: PoseSource::Own,
+                max_pose_gap: 0.05,
+            },
+            slam: SlamConfig {
+                params: SystemParams::default().with_dynapix(DynaPixParams::new(mode.weighting())),
+                vocabulary: VocabularyChoice::Embedded,
+                seed: 0,
+            },
+            passes: PassConfig::default(),
+            online: OnlineConfig::default(),
+        }
+    }
+
+    /// This configuration with `method`.
+    pub fn with_method(mut self, method: Method) -> Self {
+        self.method = method;
+        self
+    }
+
+    /// Reads a configuration file: JSON when the name ends in `.json`, YAML otherwise.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        Self::load_with(Some(path.as_ref()), None)
+    }
+
+    /// The configuration of an optional file with an optional mode that replaces the file's
+    /// (its defaults then follow the given mode): what a command line with `--config FILE`
+    /// and `--mode MODE` means.
+    pub fn load_with(path: Option<&Path>, mode: Option<Mode>) -> Result<Self> {
+        let mut v = match path {
+            None => Value::Object(Default::default()),
+            Some(path) => Self::read_value(path)?,
+        };
+        if let (Some(m), Value::Object(map)) = (mode, &mut v) {
+            map.insert("mode".into(), Value::String(m.name().into()));
+        }
+        Self::from_value(v).map_err(|e| match (e, path) {
+            (
+                Error::Config {
+                    path: None,
+                    message,
+                },
+                Some(p),
+            ) => Error::Config {
+                path: Some(p.to_path_buf()),
+                message,
+            },
+            (other, _) => other,
+        })
+    }
+
+    /// The parsed document of a configuration file (JSON or YAML by extension).
+    fn read_value(path: &Path) -> Result<Value> {
+        let bad = |message: String| Error::Config {
+            path: Some(path.to_path_buf()),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
+            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))
+        } else if text.trim().is_empty() {
+            Ok(Value::Null)
+        } else {
+            serde_saphyr::from_str(&text).map_err(|e| bad(format!("not YAML: {e}")))
+        }
+    }
+
+    /// Parses a JSON configuration (see [`Config::from_value`]).
+    pub fn from_json_str(text: &str) -> Result<Self> {
+        let v: Value =
+            serde_json::from_str(text).map_err(|e| Error::config(format!("not JSON: {e}")))?;
+        Self::from_value(v)
+    }
+
+    /// Parses a YAML configuration (see [`Config::from_value`]).
+    pub fn from_yaml_str(text: &str) -> Result<Self> {
+        if text.trim().is_empty() {
+            return Ok(Self::default());
+        }
+        let v: Value =
+            serde_saphyr::from_str(text).map_err(|e| Error::config(format!("not YAML: {e}")))?;
+        Self::from_value(v)
+    }
+
+    /// Builds a configuration from a parsed document: its `mode` (and motion variant) pick
+    /// the defaults, its values replace them key by key. Unknown keys, values of the wrong
+    /// type and nested mode fields that disagree with `mode` are errors.
+    pub fn from_value(v: Value) -> Result<Self> {
+        let v = match v {
+            Value::Null => Value::Object(Default::default()),
+            Value::Object(_) => v,
+            other => {
+                return Err(Error::config(format!(
+                    "expected a map of sections, got {other}"
+                )));
+            }
+        };
+        let mode: Mode = match v.get("mode") {
+            Some(m) => serde_json::from_value(m.clone())
+                .map_err(|e| Error::config(format!("mode: {e} (paper or reference)")))?,
+            None => Mode::Paper,
+        };
+        let variant: Variant = match v.pointer("/motion/params/variant") {
+            Some(m) => serde_json::from_value(m.clone())
+                .map_err(|e| Error::config(format!("motion.params.variant: {e}")))?,
+            None => Variant::Tum,
+        };
+        let base = Self::with_variant(mode, variant);
+        let mut merged = base.to_json_value();
+        check_known_keys(&v, &merged, "")?;
+        merge(&mut merged, v);
+        let config: Config =
+            serde_json::from_value(merged).map_err(|e| Error::config(format!("{e}")))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The configuration as a JSON value (what `run.json` records). Goes through the JSON
+    /// text so `f32` parameters read as written (0.9, not 0.8999999761581421).
+    pub fn to_json_value(&self) -> Value {
+        serde_json::to_string(self)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or(Value::Null)
+    }
+
+    /// Checks the values: nested mode fields agree with [`Config::mode`], counts and ranges
+    /// are valid.
+    pub fn validate(&self) -> Result<()> {
+        let m = self.mode.motion();
+        let p = &self.motion.params;
+        for (key, got) in [
+            ("motion.params.mode", p.mode),
+            ("motion.params.splat.mode", p.splat.mode),
+            ("motion.params.moving.mode", p.moving.mode),
+        ] {
+            if got != m {
+                return Err(Error::config(format!(
+                    "{key} is {got:?} but mode is {}: set only `mode` (paper or reference)",
+                    self.mode.name()
+                )));
+            }
+        }
+        let w = self.slam.params.map.dynapix.weighting;
+        if w != self.mode.weighting() {
+            return Err(Error::config(format!(
+                "slam.params.map.dynapix.weighting is {w:?} but mode is {}: set only `mode` \
+                 (the method turns weighting off for orbslam2 and threshold)",
+                self.mode.name()
+            )));
+        }
+        if p.offsets.contains(&0) {
+            return Err(Error::config("motion.params.offsets must not contain 0"));
+        }
+        if self.passes.weighted == 0 {
+            return Err(Error::config("passes.weighted must be at least 1"));
+        }
+        if self.sequence.max_frames == Some(0) {
+            return Err(Error::config("sequence.max_frames must be at least 1"));
+        }
+        if !(self.motion.max_pose_gap.is_finite() && self.motion.max_pose_gap >= 0.0) {
+            return Err(Error::config(
+                "motion.max_pose_gap must be a non-negative number",
+            ));
+        }
+        if !(self.sequence.max_diff.is_finite() && self.sequence.max_diff > 0.0) {
+            return Err(Error::config("sequence.max_diff must be positive"));
+        }
+        let d = &self.slam.params.map.dynapix;
+        for (key, v) in [("gamma_add", d.gamma_add), ("gamma_del", d.gamma_del)] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(Error::config(format!(
+                    "slam.params.map.dynapix.{key} must lie in [0, 1], got {v}"
+                )));
+            }
+        }
+        if self.online.past_offsets.iter().any(|&o| o >= 0) {
+            return Err(Error::config(
+                "online.past_offsets must be negative (the moving term uses past neighbours only)",
+            ));
+        }
+        if self.online.window == 0 {
+            return Err(Error::config("online.window must be at least 1"));
+        }
+        Ok(())
+    }
+
+    /// The motion parameters of the method: the ablations switch a term off.
+    pub fn motion_params(&self) -> MotionParams {
+        let mut p = self.motion.params.clone();
+        match self.method.terms() {
+            Some(Terms::NoMovable) => p.use_movable = false,
+            Some(Terms::NoMoving) => p.use_moving = false,
+            _ => {}
+        }
+        p
+    }
+
+    /// The optical-flow parameters of the configured preset.
+    pub fn flow_params(&self) -> DisParams {
+        DisParams::preset(self.motion.flow.preset())
+    }
+
+    /// The background source of the maps for a sequence that has (`has_folder`) or has not a
+    /// `background/` folder.
+    pub fn backgrounds(&self, has_folder: bool) -> Backgrounds {
+        let folder = match self.motion.background {
+            BackgroundSource::Auto => has_folder,
+            BackgroundSource::Folder => true,
+            BackgroundSource::Reconstruct => false,
+        };
+        if folder {
+            Backgrounds::Given
+        } else {
+            Backgrounds::Reconstruct(self.motion.reconstruct.clone())
+        }
+    }
+
+    /// The SLAM parameters of the method: its weighting in [`Config::mode`] (off for ORB-SLAM2
+    /// and the threshold ablation).
+    pub fn system_params(&self) -> SystemParams {
+        let mut p = self.slam.params.clone();
+        p.map.dynapix.weighting = self.method.weighting(self.mode);
+        p
+    }
+
+    /// The SLAM parameters of an unweighted pass (the first pass, ORB-SLAM2 mode).
+    pub fn orbslam2_params(&self) -> SystemParams {
+        self.clone().with_method(Method::Orbslam2).system_params()
+    }
+}
+
+/// Errors for keys of `file` that `known` (the serialised defaults) does not have.
+fn check_known_keys(file: &Value, known: &Value, at: &str) -> Result<()> {
+    if let (Value::Object(f), Value::Object(k)) = (file, known) {
+        for (key, v) in f {
+            let path = if at.is_empty() {
+                key.clone()
+            } else {
+                format!("{at}.{key}")
+            };
+            match k.get(key) {
+                None => {
+                    let mut names: Vec<&str> = k.keys().map(String::as_str).collect();
+                    names.sort_unstable();
+                    return Err(Error::config(format!(
+                        "unknown key {path} (known here: {})",
+                        names.join(", ")
+                    )));
+                }
+                Some(kv) => check_known_keys(v, kv, &path)?,
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Replaces values of `base` by those of `over`, descending into maps.
+fn merge(base: &mut Value, over: Value) {
+    match (base, over) {
+        (Value::Object(b), Value::Object(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynapix_slam::dynapix::{ProbUpdate, Weighting};
+
+    #[test]
+    fn default_is_the_paper_and_reference_is_consistent() {
+        let p = Config::default();
+        p.validate().unwrap();
+        assert_eq!(p.mode, Mode::Paper);
+        assert_eq!(p.slam.params, SystemParams::default());
+        let r = Config::new(Mode::Reference);
+        r.validate().unwrap();
+        assert_eq!(r.motion.params.splat.mode, dynapix_motion::Mode::Reference);
+        assert_eq!(r.slam.params.map.dynapix.update, ProbUpdate::Latest);
+        assert_eq!(
+            r.clone()
+                .with_method(Method::Orbslam2)
+                .system_params()
+                .map
+                .dynapix
+                .weighting,
+            Weighting::Off
+        );
+        assert_eq!(
+            r.system_params().map.dynapix.weighting,
+            Weighting::Reference
+        );
+        let nm = Config::default()
+            .with_method(Method::NoMoving)
+            .motion_params();
+        assert!(nm.use_movable && !nm.use_moving);
+    }
+
+    #[test]
+    fn files_take_the_defaults_of_their_mode_and_refuse_contradictions() {
+        // Only the mode: every mode-dependent value follows.
+        let c = Config::from_yaml_str("mode: reference\n").unwrap();
+        assert_eq!(c, Config::new(Mode::Reference));
+        let c = Config::from_json_str(
+            r#"{"method": "no-movable", "motion": {"flow": "medium", "params": {"offsets": [-2, 2]}},
+                "slam": {"params": {"tracking": {"motion_th": 10.0}, "map": {"dynapix": {"gamma_del": 0.2}}}}}"#,
+        )
+        .unwrap();
+        assert_eq!(c.method, Method::NoMovable);
+        assert_eq!(c.motion.flow, FlowPreset::Medium);
+        assert_eq!(c.motion.params.offsets, vec![-2, 2]);
+        assert_eq!(c.motion.params.movable, MotionParams::default().movable);
+        assert_eq!(c.slam.params.tracking.motion_th, 10.0);
+        assert_eq!(c.slam.params.map.dynapix.gamma_del, 0.2);
+        assert_eq!(c.slam.params.map.dynapix.gamma_add, 0.05);
+        // A full record reads back to the same configuration.
+        let text = serde_json::to_string_pretty(&c.to_json_value()).unwrap();
+        assert_eq!(Config::from_json_str(&text).unwrap(), c);
+        // Contradictions, typos and bad values are errors naming the key.
+        let e = Config::from_yaml_str(
+            "mode: paper\nmotion:\n  params:\n    splat:\n      mode: reference\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("motion.params.splat.mode"), "{e}");
+        let e = Config::from_yaml_str("slam:\n  parms: {}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown key slam.parms"), "{e}");
+        let e = Config::from_yaml_str("passes:\n  weighted: 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("passes.weighted"), "{e}");
+        let e = Config::from_yaml_str("mode: fancy\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("mode"), "{e}");
+        let e = Config::from_json_str(r#"{"motion": {"poses": {"file": 3}}}"#).unwrap_err();
+        assert!(matches!(e, Error::Config { .. }), "{e}");
+        let c = Config::from_yaml_str("motion:\n  poses:\n    file: traj.txt\n").unwrap();
+        assert_eq!(c.motion.poses, PoseSource::File("traj.txt".into()));
+    }
+
+    #[test]
+    fn load_names_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.yaml");
+        std::fs::write(&p, "method: threshold\nsequence:\n  max_frames: 20\n").unwrap();
+        let c = Config::load(&p).unwrap();
+        assert_eq!(
+            (c.method, c.sequence.max_frames),
+            (Method::Threshold, Some(20))
+        );
+        std::fs::write(&p, "method: [1\n").unwrap();
+        let e = Config::load(&p).unwrap_err().to_string();
+        assert!(e.contains("c.yaml"), "{e}");
+        let j = dir.path().join("c.json");
+        std::fs::write(&j, r#"{"mode": "reference"}"#).unwrap();
+        assert_eq!(Config::load(&j).unwrap().mode, Mode::Reference);
+    }
+}

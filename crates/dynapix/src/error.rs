@@ -1,0 +1,71 @@
+//! Errors of the library, with the context a user needs (file, frame, key).
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in a DynaPix run.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading or writing a file of a sequence, a trajectory or a map.
+    #[error(transparent)]
+    Io(#[from] dynapix_io::IoError),
+    /// A configuration file or value is not valid.
+    #[error("configuration{}: {message}", path.as_ref().map(|p| format!(" {}", p.display())).unwrap_or_default())]
+    Config {
+        /// The file, when the value came from one.
+        path: Option<PathBuf>,
+        /// What is wrong.
+        message: String,
+    },
+    /// The inputs do not fit together (camera, poses, frames, maps).
+    #[error("{0}")]
+    Input(String),
+    /// The motion maps of a sequence.
+    #[error("motion maps: {0}")]
+    Motion(#[from] dynapix_motion::SequenceError),
+    /// The motion map of one frame (online mode).
+    #[error("motion map: {0}")]
+    MotionFrame(#[from] dynapix_motion::MotionError),
+    /// The SLAM system refused a frame.
+    #[error(transparent)]
+    Process(#[from] dynapix_slam::system::ProcessError),
+    /// The ORB extractor settings.
+    #[error("ORB settings: {0}")]
+    Orb(#[from] dynapix_slam::orb::OrbError),
+    /// A vocabulary file.
+    #[error("vocabulary {}: {source}", path.display())]
+    Vocabulary {
+        /// The file (or `<embedded>`).
+        path: PathBuf,
+        /// What went wrong.
+        source: dynapix_slam::vocab::VocabError,
+    },
+    /// A file that is not one of the formats above (`motion.json`, run records).
+    #[error("{}: {message}", path.display())]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl Error {
+    /// A configuration error without a file.
+    pub(crate) fn config(message: impl Into<String>) -> Self {
+        Error::Config {
+            path: None,
+            message: message.into(),
+        }
+    }
+
+    /// An error about a file.
+    pub(crate) fn file(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::File {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Result with the library's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,361 @@
+//! A sequence folder opened for a run: the frames of the one reader
+//! ([`dynapix_io::Sequence`], one association policy) and the camera, resolved in one order
+//! for every command: an explicit settings file, else a preset, else the folder's
+//! `camera.yaml`, else the preset of the folder's dataset (`rgbd_dataset_freiburgN_*`,
+//! `rgbd_bonn_*`) or the GRADE layout, else an error that says how to give it (design §6).
+
+use std::path::{Path, PathBuf};
+
+use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
+use dynapix_io::{Sequence, SequenceOptions, Settings};
+use dynapix_slam::frame::RgbdCamera;
+use dynapix_slam::orb::OrbParams;
+use image::RgbImage;
+use serde::Serialize;
+
+use crate::config::SequenceConfig;
+use crate::error::{Error, Result};
+use crate::hash::Fnv64;
+
+/// Camera presets (ORB-SLAM2 settings files).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum CameraPreset {
+    /// TUM fr1 (`TUM1.yaml`, distorted).
+    Tum1,
+    /// TUM fr2 (`TUM2.yaml`, distorted, depth factor 5208).
+    Tum2,
+    /// TUM fr3 (`TUM3.yaml`).
+    Tum3,
+    /// GRADE (`GRADE.yaml`, depth in mm, 3000 features).
+    Grade,
+    /// Bonn RGB-D Dynamic (the dataset's Kinect calibration, distorted).
+    Bonn,
+}
+
+impl CameraPreset {
+    /// Every preset.
+    pub const ALL: [CameraPreset; 5] = [
+        CameraPreset::Tum1,
+        CameraPreset::Tum2,
+        CameraPreset::Tum3,
+        CameraPreset::Grade,
+        CameraPreset::Bonn,
+    ];
+
+    /// The preset's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            CameraPreset::Tum1 => "tum1",
+            CameraPreset::Tum2 => "tum2",
+            CameraPreset::Tum3 => "tum3",
+            CameraPreset::Grade => "grade",
+            CameraPreset::Bonn => "bonn",
+        }
+    }
+
+    /// The settings of the preset.
+    pub fn settings(self) -> Settings {
+        match self {
+            CameraPreset::Tum1 => Settings::tum1(),
+            CameraPreset::Tum2 => Settings::tum2(),
+            CameraPreset::Tum3 => Settings::tum3(),
+            CameraPreset::Grade => Settings::grade(),
+            CameraPreset::Bonn => Settings::bonn(),
+        }
+    }
+}
+
+/// How the camera of a run is chosen.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum CameraChoice {
+    /// From the sequence folder (`camera.yaml`, folder name, GRADE layout).
+    #[default]
+    Sequence,
+    /// A preset.
+    Preset(CameraPreset),
+    /// An ORB-SLAM2 settings file (missing keys take the TUM values).
+    Settings(PathBuf),
+}
+
+/// Where the camera of a run came from (recorded in outputs).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "source", rename_all = "snake_case")]
+pub enum CameraSource {
+    /// A settings file given by the caller.
+    SettingsFile {
+        /// The file.
+        path: PathBuf,
+        /// Keys that took the TUM values.
+        missing_keys: Vec<String>,
+    },
+    /// A preset given by the caller.
+    Preset {
+        /// Its name.
+        name: String,
+    },
+    /// The sequence folder's `camera.yaml`.
+    SequenceFile {
+        /// The file.
+        path: PathBuf,
+        /// Keys that took the TUM values.
+        missing_keys: Vec<String>,
+    },
+    /// The preset implied by the folder name or layout.
+    FolderName {
+        /// The preset's name.
+        preset: String,
+    },
+}
+
+/// The camera of a run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    /// The settings (intrinsics, distortion, depth factor, ORB parameters).
+    pub settings: Settings,
+    /// Where they came from.
+    pub source: CameraSource,
+    /// The settings stated no image size and the first frame's size was used.
+    pub size_from_frames: bool,
+}
+
+impl Camera {
+    /// The SLAM camera (intrinsics, distortion, `bf`, `ThDepth`, fps).
+    pub fn rgbd(&self) -> RgbdCamera {
+        let s = &self.settings;
+        RgbdCamera::new(s.camera(), s.bf, s.th_depth, s.fps)
+    }
+
+    /// The pinhole camera of the motion maps.
+    pub fn pinhole(&self) -> dynapix_geometry::PinholeCamera {
+        self.settings.camera()
+    }
+
+    /// The ORB extractor parameters of the settings.
+    pub fn orb_params(&self) -> Result<OrbParams> {
+        let o = &self.settings.orb;
+        let fast = |v: u32, key: &str| {
+            u8::try_from(v)
+                .map_err(|_| Error::Input(format!("ORBextractor.{key} {v} does not fit 0..=255")))
+        };
+        Ok(OrbParams {
+            nfeatures: o.n_features,
+            scale_factor: o.scale_factor as f32,
+            nlevels: o.n_levels,
+            ini_th_fast: fast(o.ini_th_fast, "iniThFAST")?,
+            min_th_fast: fast(o.min_th_fast, "minThFAST")?,
+        })
+    }
+
+    /// What outputs record about the camera.
+    pub fn record(&self) -> serde_json::Value {
+        let s = &self.settings;
+        serde_json::json!({
+            "source": self.source,
+            "pinhole": s.camera(),
+            "bf": s.bf,
+            "th_depth": s.th_depth,
+            "fps": s.fps,
+            "depth_map_factor": s.depth_map_factor,
+            "orb": {
+                "n_features": s.orb.n_features,
+                "scale_factor": s.orb.scale_factor,
+                "n_levels": s.orb.n_levels,
+                "ini_th_fast": s.orb.ini_th_fast,
+                "min_th_fast": s.orb.min_th_fast,
+            },
+            "size_from_frames": self.size_from_frames,
+        })
+    }
+}
+
+/// A sequence opened for a run.
+#[derive(Clone, Debug)]
+pub struct Input {
+    /// The frames (the one reader).
+    pub sequence: Sequence,
+    /// The camera.
+    pub camera: Camera,
+}
+
+/// Reads a settings file leniently (missing keys take the TUM values).
+fn read_settings(path: &Path) -> Result<(Settings, Vec<String>)> {
+    let (s, missing) = Settings::read_lenient(path)?;
+    if !missing.is_empty() {
+        tracing::debug!(
+            "{}: missing keys take the TUM values: {}",
+            path.display(),
+            missing.join(", ")
+        );
+    }
+    Ok((s, missing.iter().map(|k| k.to_string()).collect()))
+}
+
+fn size_missing(missing: &[String]) -> bool {
+    missing
+        .iter()
+        .any(|k| k == "Camera.width" || k == "Camera.height")
+}
+
+impl Input {
+    /// Opens the sequence folder `dir` with the sequence options of `config` and resolves the
+    /// camera. The depth factor of the frames is the camera's `DepthMapFactor`.
+    pub fn open(
+        dir: impl AsRef<Path>,
+        config: &SequenceConfig,
+        camera: &CameraChoice,
+    ) -> Result<Self> {
+        Self::open_with(dir, config, camera, None)
+    }
+
+    /// [`Input::open`] with an explicit association file (4 columns) instead of the folder's
+    /// own frame list.
+    pub fn open_with(
+        dir: impl AsRef<Path>,
+        config: &SequenceConfig,
+        camera: &CameraChoice,
+        association: Option<&Path>,
+    ) -> Result<Self> {
+        let dir = dir.as_ref();
+        let opts = SequenceOptions {
+            max_diff: config.max_diff,
+            pairing: config.pairing,
+            association_file: association.map(Path::to_path_buf),
+            ..Default::default()
+        };
+        let mut sequence = Sequence::open_with(dir, &opts)?;
+        if let Some(n) = config.max_frames {
+            sequence.truncate(n);
+        }
+        let (mut settings, source) = match camera {
+            CameraChoice::Settings(p) => {
+                let (s, missing_keys) = read_settings(p)?;
+                let src = CameraSource::SettingsFile {
+                    path: p.clone(),
+                    missing_keys,
+                };
+                (s, src)
+            }
+            CameraChoice::Preset(p) => (
+                p.settings(),
+                CameraSource::Preset {
+                    name: p.name().to_string(),
+                },
+            ),
+            CameraChoice::Sequence => {
+                let own = dir.join(SEQUENCE_SETTINGS_FILE);
+                match &sequence.settings {
+                    Some(s) if own.is_file() => (
+                        s.clone(),
+                        CameraSource::SequenceFile {
+                            path: own,
+                            missing_keys: sequence
+                                .settings_missing_keys
+                                .iter()
+                                .map(|k| k.to_string())
+                                .collect(),
+                        },
+                    ),
+                    Some(s) => {
+                        let preset = dynapix_io::settings::PRESET_NAMES
+                            .iter()
+                            .find(|n| Settings::preset(n).as_ref() == Some(s))
+                            .map_or("unknown", |n| n)
+                            .to_string();
+                        (s.clone(), CameraSource::FolderName { preset })
+                    }
+                    None => {
+                        return Err(Error::Input(format!(
+                            "cannot tell the camera of {}: give --camera PRESET or --settings \
+                             FILE (or add {SEQUENCE_SETTINGS_FILE})",
+                            dir.display()
+                        )));
+                    }
+                }
+            }
+        };
+        let missing = match &source {
+            CameraSource::SettingsFile { missing_keys, .. }
+            | CameraSource::SequenceFile { missing_keys, .. } => missing_keys.clone(),
+            _ => Vec::new(),
+        };
+        let size_from_frames = size_missing(&missing);
+        if size_from_frames {
+            let first = &sequence.info(0)?.rgb;
+            let (w, h) = image::image_dimensions(first)
+                .map_err(|e| Error::file(first, format!("cannot read the image size: {e}")))?;
+            settings.width = w;
+            settings.height = h;
+        }
+        if !(100.0..=100_000.0).contains(&settings.depth_map_factor) {
+            tracing::warn!(
+                "implausible DepthMapFactor {} (expected about 1000-5208)",
+                settings.depth_map_factor
+            );
+        }
+        sequence.depth_factor = settings.depth_map_factor;
+        Ok(Self {
+            sequence,
+            camera: Camera {
+                settings,
+                source,
+                size_from_frames,
+            },
+        })
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.sequence.len()
+    }
+
+    /// True when there is no frame (never after a successful open).
+    pub fn is_empty(&self) -> bool {
+        self.sequence.is_empty()
+    }
+
+    /// Frame times (s).
+    pub fn timestamps(&self) -> Vec<f64> {
+        self.sequence.timestamps()
+    }
+
+    /// The colour image and depth (metres) of frame `i`.
+    pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, dynapix_io::DepthImage)> {
+        Ok(self.sequence.load_rgbd(i)?)
+    }
+
+    /// The file name of frame `i`'s probability map or mask: the rgb file name with `.png`.
+    pub fn map_name(&self, i: usize) -> Option<PathBuf> {
+        Some(PathBuf::from(self.sequence.rgb_name(i)?).with_extension("png"))
+    }
+
+    /// A hash of the frame list (times and file paths as resolved): two runs on the same
+    /// frames have the same hash.
+    pub fn frames_hash(&self) -> String {
+        let mut h = Fnv64::new();
+        for f in &self.sequence.frames {
+            h.write(&f.t.to_le_bytes());
+            h.write(f.rgb.as_os_str().as_encoded_bytes());
+            h.write(&f.t_depth.to_le_bytes());
+            h.write(f.depth.as_os_str().as_encoded_bytes());
+        }
+        h.hex()
+    }
+
+    /// What outputs record about the sequence: folder, frame list and its policy, camera.
+    pub fn record(&self) -> serde_json::Value {
+        let s = &self.sequence;
+        serde_json::json!({
+            "dir": s.dir,
+            "frames": s.len(),
+            "frame_list": s.frame_list,
+            "frames_hash": self.frames_hash(),
+            "first_t": s.frames.first().map(|f| f.t),
+            "last_t": s.frames.last().map(|f| f.t),
+            "depth_factor": s.depth_factor,
+            "groundtruth": s.groundtruth.is_some(),
+            "camera": self.camera.record(),
+        })
+    }
+}

@@ -1,0 +1,79 @@
+//! DynaPix dynamic RGB-D SLAM (Xu, Bonetto, Ahmad, GCPR 2024) as a library: the facade over
+//! `dynapix-io` (sequences, files), `dynapix-motion` (per-pixel motion probability) and
+//! `dynapix-slam` (the ORB-SLAM2-class backend weighted by w = 1 − P).
+//!
+//! - [`Config`]: the one configuration (method, paper/reference [`Mode`], sequence reading,
+//!   motion maps, SLAM, passes, online schedule), serde with the paper's defaults, loadable
+//!   from JSON or YAML.
+//! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process,
+//!   with a motion-map cache keyed by everything that determines the maps and a provenance
+//!   record of every input.
+//! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
+//!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
+//! - [`MotionProbability`] and [`StaticWeights`]: P and w = 1 − P as distinct types.
+//!
+//! Streaming a sequence folder through the online mode:
+//!
+//! ```no_run
+//! use dynapix::{CameraChoice, Config, Input, OnlineDynaPix, RgbdFrame};
+//!
+//! # fn main() -> dynapix::Result<()> {
+//! let config = Config::default(); // DynaPix, paper mode
+//! let input = Input::open("walking_xyz", &config.sequence, &CameraChoice::Sequence)?;
+//! let mut online = OnlineDynaPix::new(&input.camera, &config)?;
+//! for i in 0..input.len() {
+//!     let (rgb, depth) = input.load_rgbd(i)?;
+//!     let t = input.sequence.frames[i].t;
+//!     if let Some(r) = online.push(RgbdFrame::new(t, rgb, depth))? {
+//!         if let Some(p) = r.pose_wc {
+//!             println!("{:.6} {:?}", r.t, p.translation.vector);
+//!         }
+//!     }
+//! }
+//! online.finish()?;
+//! # Ok(())
+//! # }
+//! ```
+
+//! P and w are different types, so one cannot stand in for the other:
+//!
+//! ```compile_fail
+//! fn track(weights: &dynapix::StaticWeights) {}
+//! let p = dynapix::MotionProbability::new(image::ImageBuffer::new(4, 4));
+//! track(&p); // a probability is not a weight: convert with `p.static_weights()`
+//! ```
+//!
+//! ```
+//! let p = dynapix::MotionProbability::new(image::ImageBuffer::from_pixel(4, 4, image::Luma([0.25])));
+//! let w = p.static_weights(); // w = 1 − P, quantised like the map files
+//! assert_eq!(w.as_image().get_pixel(0, 0)[0], 0.75);
+//! ```
+
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod hash;
+pub mod input;
+pub mod maps;
+pub mod method;
+pub mod offline;
+pub mod online;
+pub mod poses;
+pub mod progress;
+pub mod slam;
+
+pub use config::{
+    BackgroundSource, Config, FirstPass, FlowPreset, MotionConfig, OnlineConfig, PassConfig,
+    PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
+};
+pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
+pub use error::{Error, Result};
+pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
+pub use maps::{MapFolder, MapJob, MapSet};
+pub use method::{Method, Mode, Terms};
+pub use offline::{OfflineOutput, OfflineRunner, RunOptions};
+pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
+pub use poses::{FramePoses, PoseOrigin};
+pub use progress::{NoProgress, Progress, ProgressEvent};
+pub use slam::{PassOutput, PassStats, SlamSession};

@@ -1,0 +1,486 @@
+//! Motion maps of a sequence on disk: what determines them ([`MapJob`]), their computation
+//! (over [`dynapix_motion::SequenceMotion`] with the sequence as frame loader), the folder
+//! they live in with its `motion.json` record ([`MapFolder`]), and the cache that reuses a
+//! folder only when its record matches the job exactly ([`cached_maps`]).
+//!
+//! A folder holds one 16-bit PNG per frame, named like the rgb image (`trunc((1 − P)·1000)`,
+//! the reference format), and `motion.json`: `{"sequence", "config", "status", "results"}`.
+//! `config` lists everything that determines the maps (frame list, poses and a fingerprint of
+//! their values, background, flow, camera, parameters, the code version of the maps); the
+//! cache key is a hash of it. Reading a folder back gives its provenance, so maps made with
+//! ground-truth poses are reported as such.
+
+use std::path::{Path, PathBuf};
+
+use dynapix_flow::dis::DisFlow;
+use dynapix_io::MotionProbability;
+use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
+use dynapix_motion::{
+    Backgrounds, BoxError, FrameLoader, FrameMotion, MotionParams, RgbdImages, SequenceMotion,
+    SequenceStats, StaticBackground,
+};
+use serde_json::{Value, json};
+
+use crate::config::{Config, FlowPreset};
+use crate::error::{Error, Result};
+use crate::hash::Fnv64;
+use crate::input::Input;
+use crate::poses::FramePoses;
+use crate::progress::{Progress, Task};
+
+/// Version of the motion-map computation, part of every cache key: bump it when a change of
+/// the motion algorithms changes their output without changing a parameter (2: splatting
+/// through the lens distortion of distorted cameras).
+pub const MOTION_MAPS_VERSION: u32 = 2;
+
+/// The record file of a map folder.
+pub const RECORD_FILE: &str = "motion.json";
+
+/// The frames of an [`Input`] as a motion-map frame loader.
+pub struct SequenceLoader<'a> {
+    input: &'a Input,
+    use_depth_bg: bool,
+}
+
+impl<'a> SequenceLoader<'a> {
+    /// Loads frames of `input`; with `use_depth_bg` the given backgrounds take their depth
+    /// from `depth_bg/`, else from the frame.
+    pub fn new(input: &'a Input, use_depth_bg: bool) -> Self {
+        Self {
+            input,
+            use_depth_bg,
+        }
+    }
+}
+
+impl FrameLoader for SequenceLoader<'_> {
+    fn len(&self) -> usize {
+        self.input.len()
+    }
+
+    fn frame(&self, i: usize) -> std::result::Result<RgbdImages, BoxError> {
+        let (rgb, depth) = self.input.load_rgbd(i)?;
+        Ok(RgbdImages { rgb, depth })
+    }
+
+    fn background(
+        &self,
+        i: usize,
+        frame: &RgbdImages,
+    ) -> std::result::Result<StaticBackground, BoxError> {
+        let info = self.input.sequence.info(i)?;
+        let path = info
+            .background
+            .as_ref()
+            .ok_or_else(|| format!("no background image for {}", info.rgb.display()))?;
+        let depth = if self.use_depth_bg {
+            let p = info
+                .depth_bg
+                .as_ref()
+                .ok_or_else(|| format!("no background depth for {}", info.rgb.display()))?;
+            read_depth(p, self.input.sequence.depth_factor)?
+        } else {
+            frame.depth.clone()
+        };
+        Ok(StaticBackground {
+            rgb: read_rgb(path)?,
+            depth,
+        })
+    }
+}
+
+/// Everything that determines the motion maps of a sequence.
+pub struct MapJob<'a> {
+    /// The sequence.
+    pub input: &'a Input,
+    /// Poses for splatting.
+    pub poses: &'a FramePoses,
+    /// Motion-probability parameters (with the method's terms).
+    pub params: MotionParams,
+    /// Optical-flow preset.
+    pub flow: FlowPreset,
+    /// Background source.
+    pub backgrounds: Backgrounds,
+    /// Given backgrounds take their depth from `depth_bg/`.
+    pub use_depth_bg: bool,
+    /// Largest frame-to-pose time distance used to look the poses up (recorded).
+    pub max_pose_gap: f64,
+    /// Extra facts about the poses (e.g. added noise), recorded with them.
+    pub pose_notes: Value,
+}
+
+impl<'a> MapJob<'a> {
+    /// The job of `config` (its method's terms, flow preset, background choice) on `input`.
+    pub fn new(input: &'a Input, config: &Config, poses: &'a FramePoses) -> Self {
+        let has_folder = input
+            .sequence
+            .frames
+            .first()
+            .is_some_and(|f| f.background.is_some());
+        let backgrounds = config.backgrounds(has_folder);
+        let use_depth_bg = !backgrounds.reconstructs()
+            && input
+                .sequence
+                .frames
+                .first()
+                .is_some_and(|f| f.depth_bg.is_some());
+        Self {
+            input,
+            poses,
+            params: config.motion_params(),
+            flow: config.motion.flow,
+            backgrounds,
+            use_depth_bg,
+            max_pose_gap: config.motion.max_pose_gap,
+            pose_notes: Value::Null,
+        }
+    }
+
+    /// True when the maps of `config` on `input` use poses.
+    pub fn needs_poses(input: &Input, config: &Config) -> bool {
+        let has_folder = input
+            .sequence
+            .frames
+            .first()
+            .is_some_and(|f| f.background.is_some());
+        SequenceMotion::needs_poses(&config.motion_params(), &config.backgrounds(has_folder))
+    }
+
+    /// The flow provider.
+    pub fn flow_provider(&self) -> DisFlow {
+        DisFlow::with_preset(self.flow.preset())
+    }
+
+    /// The `config` document of `motion.json`: everything that determines the maps.
+    pub fn record(&self) -> Value {
+        let seq = &self.input.sequence;
+        let cam = self.input.camera.pinhole();
+        json!({
+            "maps_version": MOTION_MAPS_VERSION,
+            "frames": seq.len(),
+            "frame_list": seq.frame_list,
+            "frames_hash": self.input.frames_hash(),
+            "poses": {
+                "origin": self.poses.origin,
+                "interpolation": "slerp",
+                "max_gap_s": self.max_pose_gap,
+                "content_hash": self.poses.content_hash(),
+                "notes": self.pose_notes,
+            },
+            "background": match &self.backgrounds {
+                Backgrounds::Reconstruct(r) => json!({"source": "reconstruct", "params": r}),
+                Backgrounds::Given => json!({
+                    "source": "folder",
+                    "depth": if self.use_depth_bg { "depth_bg" } else { "depth (dynamic)" },
+                }),
+            },
+            "flow": {
+                "provider": "dis",
+                "preset": self.flow.name(),
+                "params": self.flow_provider().params,
+            },
+            "camera": cam,
+            "depth_factor": seq.depth_factor,
+            "params": self.params,
+            "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
+        })
+    }
+
+    /// The cache key: a hash of [`MapJob::record`].
+    pub fn key(&self) -> String {
+        Fnv64::of(self.record().to_string().as_bytes())
+    }
+
+    /// Checks every frame's files before anything is computed: sizes against the camera,
+    /// unreadable or all-zero depth, missing backgrounds; `masks` also checks `mask/`, and
+    /// `missing_poses` lists frames without a pose (with `poses_from` naming the file).
+    pub fn check_inputs(
+        &self,
+        masks: bool,
+        missing_poses: &[usize],
+        poses_from: &str,
+    ) -> Vec<String> {
+        use rayon::prelude::*;
+        let seq = &self.input.sequence;
+        let cam = self.input.camera.pinhole();
+        let size = (cam.width, cam.height);
+        let needs_poses = SequenceMotion::needs_poses(&self.params, &self.backgrounds);
+        let given = !self.backgrounds.reconstructs();
+        (0..seq.len())
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let f = &seq.frames[i];
+                let name = f
+                    .rgb
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let mut p = Vec::new();
+                let mut check = |path: Option<&Path>, what: &str, expected: &Path| match path {
+                    None => p.push(format!(
+                        "frame {i} ({name}): {what} {}: missing",
+                        expected.display()
+                    )),
+                    Some(path) => match image::image_dimensions(path) {
+                        Ok(d) if d == size => {}
+                        Ok(d) => p.push(format!(
+                            "frame {i} ({name}): {what} {} is {}×{}, expected {}×{}",
+                            path.display(),
+                            d.0,
+                            d.1,
+                            size.0,
+                            size.1
+                        )),
+                        Err(e) => p.push(format!(
+                            "frame {i} ({name}): {what} {}: {e}",
+                            path.display()
+                        )),
+                    },
+                };
+                check(Some(&f.rgb), "rgb", &f.rgb);
+                check(Some(&f.depth), "depth", &f.depth);
+                if given {
+                    let bg = seq.dir.join("background").join(&name);
+                    check(f.background.as_deref(), "background", &bg);
+                    if self.use_depth_bg {
+                        let dbg = seq.dir.join("depth_bg").join(&name);
+                        check(f.depth_bg.as_deref(), "background depth", &dbg);
+                    }
+                }
+                if masks {
+                    let m = seq.dir.join("mask").join(&name);
+                    check(f.mask.as_deref(), "mask", &m);
+                }
+                if needs_poses && missing_poses.binary_search(&i).is_ok() {
+                    p.push(format!(
+                        "frame {i} ({name}): no pose within {} s of t = {:.6} in {poses_from}",
+                        self.max_pose_gap, f.t
+                    ));
+                }
+                if p.is_empty() {
+                    match read_depth_raw(&f.depth) {
+                        Ok(d) if d.iter().all(|&v| v == 0) => {
+                            p.push(format!("frame {i} ({name}): depth is all zero"))
+                        }
+                        Ok(_) => {}
+                        Err(e) => p.push(format!("frame {i} ({name}): {e}")),
+                    }
+                }
+                p
+            })
+            .collect()
+    }
+
+    /// Computes the maps of `frames`: `map` gets every frame's result (in parallel), its
+    /// output goes to `fold` in frame order.
+    pub fn run<R, F, G>(&self, frames: &[usize], map: F, fold: G) -> Result<SequenceStats>
+    where
+        R: Send,
+        F: Fn(FrameMotion<'_>) -> std::result::Result<R, BoxError> + Sync,
+        G: FnMut(usize, R),
+    {
+        let loader = SequenceLoader::new(self.input, self.use_depth_bg);
+        let flow = self.flow_provider();
+        let cam = self.input.camera.pinhole();
+        let seq = SequenceMotion {
+            loader: &loader,
+            poses: &self.poses.poses,
+            camera: &cam,
+            flow: &flow,
+            params: &self.params,
+            backgrounds: &self.backgrounds,
+        };
+        Ok(seq.run(frames, map, fold)?)
+    }
+}
+
+/// A folder of motion maps with its `motion.json`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MapFolder {
+    /// The folder.
+    pub dir: PathBuf,
+}
+
+impl MapFolder {
+    /// The folder `dir`.
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        Self { dir: dir.into() }
+    }
+
+    /// The map file of frame `i` of `input` (`<rgb name>.png`).
+    pub fn map_path(&self, input: &Input, i: usize) -> Option<PathBuf> {
+        Some(self.dir.join(input.map_name(i)?))
+    }
+
+    /// The record, when the folder has one.
+    pub fn read_record(&self) -> Option<Result<Value>> {
+        let path = self.dir.join(RECORD_FILE);
+        let text = std::fs::read_to_string(&path).ok()?;
+        Some(
+            serde_json::from_str(&text)
+                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
+        )
+    }
+
+    /// Writes the record atomically.
+    pub fn write_record(
+        &self,
+        input: &Input,
+        config: &Value,
+        status: &str,
+        results: Value,
+    ) -> Result<()> {
+        std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
+        let doc = json!({
+            "sequence": input.sequence.dir,
+            "config": config,
+            "status": status,
+            "results": results,
+        });
+        let text = serde_json::to_string_pretty(&doc)
+            .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
+        dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
+        Ok(())
+    }
+
+    /// True when the record says `config`, the run completed, and every frame's map exists.
+    pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
+        let Some(Ok(rec)) = self.read_record() else {
+            return false;
+        };
+        rec.get("config") == Some(config)
+            && rec.get("status").and_then(Value::as_str) == Some("complete")
+            && (0..input.len()).all(|i| self.map_path(input, i).is_some_and(|p| p.is_file()))
+    }
+
+    /// Writes the map of one frame atomically.
+    pub fn write_map(&self, input: &Input, i: usize, p: &MotionProbability) -> Result<()> {
+        let path = self
+            .map_path(input, i)
+            .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+        write_motion_probability(path, p)?;
+        Ok(())
+    }
+}
+
+/// Where the maps of a pass came from and what made them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapSet {
+    /// The folder of the maps.
+    pub folder: MapFolder,
+    /// Provenance (written into `run.json`).
+    pub record: Value,
+    /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
+    /// a record).
+    pub ground_truth: Option<bool>,
+}
+
+impl MapSet {
+    /// The maps of a folder made elsewhere (a sequence's own `prob/`): provenance from its
+    /// `motion.json` when it has one.
+    pub fn existing(folder: MapFolder, source: &str) -> Result<Self> {
+        let mut record = json!({"source": source, "dir": folder.dir});
+        let ground_truth = match folder.read_record() {
+            None => {
+                record["provenance"] = json!("unknown: no motion.json beside the maps");
+                None
+            }
+            Some(Err(e)) => return Err(e),
+            Some(Ok(rec)) => {
+                let gt = record_uses_ground_truth(&rec);
+                record["poses"] = json!(match gt {
+                    Some(true) => "ground truth",
+                    Some(false) => "not ground truth",
+                    None => "unknown",
+                });
+                record["motion_json"] = rec;
+                gt
+            }
+        };
+        Ok(Self {
+            folder,
+            record,
+            ground_truth,
+        })
+    }
+}
+
+/// Whether a `motion.json` record says its maps were made with ground-truth poses
+/// (`None` when it does not say).
+pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
+    let poses = rec.pointer("/config/poses")?;
+    if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
+        return Some(src == "ground_truth");
+    }
+    // Records written before provenance was structured: `"source": "gt" | "file"`.
+    match poses.get("source").and_then(Value::as_str)? {
+        "gt" => Some(true),
+        "file" => Some(false),
+        _ => None,
+    }
+}
+
+/// The maps of `job` in the cache folder `root`: a folder `maps-<key>` is reused when its
+/// record matches the job exactly and every map exists, else (re)computed completely.
+pub fn cached_maps(
+    job: &MapJob<'_>,
+    root: &Path,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<MapSet> {
+    let config = job.record();
+    let key = Fnv64::of(config.to_string().as_bytes());
+    let folder = MapFolder::new(root.join(format!("maps-{key}")));
+    let reused = folder.is_complete(job.input, &config);
+    if !reused {
+        compute_into(job, &folder, &config, label, progress)?;
+    }
+    let ground_truth = job.poses.origin.is_ground_truth();
+    let record = json!({
+        "source": if reused { "cache (key matched)" } else { "computed" },
+        "dir": folder.dir,
+        "key": key,
+        "poses": job.poses.origin,
+        "ground_truth_poses": ground_truth,
+        "config": config,
+    });
+    Ok(MapSet {
+        folder,
+        record,
+        ground_truth: Some(ground_truth),
+    })
+}
+
+/// Computes every frame of `job` into `folder` and records it complete.
+pub fn compute_into(
+    job: &MapJob<'_>,
+    folder: &MapFolder,
+    config: &Value,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<SequenceStats> {
+    let n = job.input.len();
+    folder.write_record(job.input, config, "running", Value::Null)?;
+    let task = Task::begin(progress, label, n);
+    let all: Vec<usize> = (0..n).collect();
+    let stats = job.run(
+        &all,
+        |m| {
+            folder.write_map(job.input, m.index, &MotionProbability::new(m.maps.p))?;
+            Ok(())
+        },
+        |_, ()| task.step(""),
+    )?;
+    drop(task);
+    folder.write_record(
+        job.input,
+        config,
+        "complete",
+        json!({
+            "frames_computed": stats.frames,
+            "compute_seconds": stats.compute_seconds,
+            "threads": rayon::current_num_threads(),
+        }),
+    )?;
+    Ok(stats)
+}

@@ -1,0 +1,414 @@
+//! The offline runner (paper §3, offline schedule): sequence → first pass → motion maps →
+//! weighted pass(es), all in this process.
+//!
+//! - The **first pass** ([`FirstPass`], today plain ORB-SLAM2) gives the poses of the first
+//!   maps when they come from the system itself ([`PoseSource::Own`]); its trajectory is
+//!   cached by a hash of what determines it (frames, camera, SLAM parameters, vocabulary,
+//!   seed).
+//! - The **motion maps** of weighted pass k are computed by [`crate::maps`] with the poses of
+//!   pass k − 1 (pass 0 = the first pass), or with fixed poses (ground truth, a file) for
+//!   every pass; they are cached by a hash of everything that determines them, and a
+//!   sequence's own `prob/` folder is used for the first weighted pass when present (its
+//!   `motion.json` tells whether ground truth made it).
+//! - **Weighted passes**: `passes.weighted` of them (1 = the paper).
+//!
+//! Nothing here parses command lines or prints; progress goes to a [`Progress`] callback and
+//! the outputs (trajectories, status, the provenance record) are returned for the caller to
+//! write.
+
+use std::path::PathBuf;
+
+use dynapix_io::Trajectory;
+use serde_json::{Value, json};
+
+use crate::config::{Config, FirstPass, PoseSource};
+use crate::error::{Error, Result};
+use crate::hash::Fnv64;
+use crate::input::Input;
+use crate::maps::{MapFolder, MapJob, MapSet, cached_maps};
+use crate::method::{Method, Terms};
+use crate::poses::{FramePoses, PoseOrigin, as_written};
+use crate::progress::Progress;
+use crate::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
+
+/// Version of the SLAM passes, part of the first-pass cache key: bump it when a change of
+/// the SLAM system changes trajectories without changing a parameter.
+pub const SLAM_PASS_VERSION: u32 = 1;
+
+/// Options of a run that are about files, not about the method.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// Cache of first passes and motion maps (default `<sequence>/dynapix_cache`).
+    pub cache_dir: Option<PathBuf>,
+    /// Ignore the sequence's own `prob/` folder and compute the maps.
+    pub recompute_maps: bool,
+    /// DynaPix+ masks (8-bit, non-zero = dynamic class) named like the rgb images; default
+    /// `<sequence>/mask`.
+    pub masks_dir: Option<PathBuf>,
+    /// Frames without a probability map run unweighted (counted) instead of failing.
+    pub allow_missing_maps: bool,
+    /// The first pass's trajectory when the caller already has it (e.g. an ORB-SLAM2 run of
+    /// the same configuration), as read from its `trajectory.txt`.
+    pub first_pass: Option<Trajectory>,
+}
+
+/// The first pass's trajectory (as its `trajectory.txt` reads back) and where it came from.
+#[derive(Clone, Debug)]
+pub struct FirstPassResult {
+    /// The trajectory.
+    pub trajectory: Trajectory,
+    /// The full pass output when it was run now.
+    pub output: Option<PassOutput>,
+    /// Provenance (`computed`, `cache`, `given`) for the run record.
+    pub record: Value,
+}
+
+/// What an offline run produced.
+#[derive(Clone, Debug)]
+pub struct OfflineOutput {
+    /// The first pass, when one was needed.
+    pub first_pass: Option<FirstPassResult>,
+    /// The maps of every weighted pass.
+    pub maps: Vec<MapSet>,
+    /// The passes: the weighted passes in order, or the single ORB-SLAM2 pass.
+    pub passes: Vec<PassOutput>,
+    /// The provenance record of the run (the body of `run.json`, without results).
+    pub record: Value,
+}
+
+impl OfflineOutput {
+    /// The last pass (the run's result; a run always has one).
+    pub fn final_pass(&self) -> Option<&PassOutput> {
+        self.passes.last()
+    }
+
+    /// The maps of the last weighted pass.
+    pub fn final_maps(&self) -> Option<&MapSet> {
+        self.maps.last()
+    }
+}
+
+/// Runs one method offline on one sequence.
+pub struct OfflineRunner<'a> {
+    config: &'a Config,
+    input: &'a Input,
+    options: RunOptions,
+}
+
+impl<'a> OfflineRunner<'a> {
+    /// A runner for `config` on `input`; checks the configuration and the method's inputs
+    /// (DynaPix+ masks).
+    pub fn new(config: &'a Config, input: &'a Input, options: RunOptions) -> Result<Self> {
+        config.validate()?;
+        let r = Self {
+            config,
+            input,
+            options,
+        };
+        if config.method.needs_masks() {
+            let d = r.masks_dir();
+            if !d.is_dir() {
+                return Err(Error::Input(format!(
+                    "dynapix+ needs semantic masks: {} is not a folder (pass --masks DIR)",
+                    d.display()
+                )));
+            }
+        }
+        Ok(r)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        self.config
+    }
+
+    /// The cache folder.
+    pub fn cache_dir(&self) -> PathBuf {
+        self.options
+            .cache_dir
+            .clone()
+            .unwrap_or_else(|| self.input.sequence.dir.join("dynapix_cache"))
+    }
+
+    /// The DynaPix+ mask folder.
+    pub fn masks_dir(&self) -> PathBuf {
+        self.options
+            .masks_dir
+            .clone()
+            .unwrap_or_else(|| self.input.sequence.dir.join("mask"))
+    }
+
+    /// One SLAM pass with the method's weighting (`maps` = `None` runs unweighted ORB-SLAM2)
+    /// and relocalisation seed `seed`.
+    pub fn pass(
+        &self,
+        method: Method,
+        maps: Option<&MapSet>,
+        seed: u64,
+        label: &str,
+        progress: &dyn Progress,
+    ) -> Result<PassOutput> {
+        let config = self.config.clone().with_method(method);
+        let mut params = config.system_params();
+        params.tracking.reloc.seed = params.tracking.reloc.seed.wrapping_add(seed);
+        let vocabulary = load_vocabulary(&config.slam.vocabulary)?;
+        let mut session = SlamSession::new(&self.input.camera, params, vocabulary)?;
+        let weights = match maps {
+            None => PassWeights::None,
+            Some(m) => PassWeights::Maps {
+                dir: &m.folder.dir,
+                threshold: method
+                    .thresholds()
+                    .then_some(config.slam.params.map.dynapix.gamma_add),
+                allow_missing: self.options.allow_missing_maps,
+            },
+        };
+        let masks = method.needs_masks().then(|| self.masks_dir());
+        run_pass(
+            self.input,
+            &mut session,
+            weights,
+            masks.as_deref(),
+            label,
+            progress,
+        )
+    }
+
+    /// The cache key document of the first pass.
+    fn first_pass_record(&self) -> Value {
+        let c = self.config;
+        json!({
+            "kind": c.passes.first,
+            "version": SLAM_PASS_VERSION,
+            "frames_hash": self.input.frames_hash(),
+            "frames": self.input.len(),
+            "camera": self.input.camera.record(),
+            "params": c.orbslam2_params(),
+            "vocabulary": c.slam.vocabulary,
+            "seed": c.slam.seed,
+        })
+    }
+
+    /// The first pass: given by the caller, found in the cache, or run now (and cached).
+    pub fn first_pass(&self, progress: &dyn Progress) -> Result<FirstPassResult> {
+        if let Some(t) = &self.options.first_pass {
+            return Ok(FirstPassResult {
+                trajectory: t.clone(),
+                output: None,
+                record: json!({"source": "given by the caller"}),
+            });
+        }
+        let FirstPass::Orbslam2 = self.config.passes.first;
+        let doc = self.first_pass_record();
+        let key = Fnv64::of(doc.to_string().as_bytes());
+        let dir = self.cache_dir().join(format!("first-pass-{key}"));
+        let traj_path = dir.join("trajectory.txt");
+        let rec_path = dir.join("pass.json");
+        let recorded = std::fs::read_to_string(&rec_path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
+        if recorded.as_ref().and_then(|r| r.get("config")) == Some(&doc)
+            && let Ok(trajectory) = Trajectory::read_tum(&traj_path)
+        {
+            return Ok(FirstPassResult {
+                trajectory,
+                output: None,
+                record: json!({"source": "cache (key matched)", "dir": dir, "key": key}),
+            });
+        }
+        let out = self.pass(
+            Method::Orbslam2,
+            None,
+            self.config.slam.seed,
+            "first pass (orbslam2)",
+            progress,
+        )?;
+        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
+        out.trajectory.write_tum(&traj_path)?;
+        let rec = json!({"config": doc, "status": "complete", "stats": out.stats});
+        dynapix_io::write_atomic(&rec_path, rec.to_string().as_bytes())?;
+        Ok(FirstPassResult {
+            trajectory: as_written(&out.trajectory)?,
+            record: json!({"source": "computed", "dir": dir, "key": key, "stats": out.stats}),
+            output: Some(out),
+        })
+    }
+
+    /// Poses for the maps of weighted pass `k` (1-based): the configured fixed source, or the
+    /// trajectory of the previous pass (`previous`, as written) for [`PoseSource::Own`].
+    fn poses_for(&self, k: usize, previous: Option<&Trajectory>) -> Result<FramePoses> {
+        let stamps = self.input.timestamps();
+        let gap = self.config.motion.max_pose_gap;
+        if !MapJob::needs_poses(self.input, self.config) {
+            return Ok(FramePoses::unused(stamps.len()));
+        }
+        match &self.config.motion.poses {
+            PoseSource::GroundTruth => {
+                let path = self.input.sequence.dir.join("groundtruth.txt");
+                let gt = self.input.sequence.groundtruth.as_ref().ok_or_else(|| {
+                    Error::Input(format!(
+                        "ground-truth poses asked for, but {} does not exist",
+                        path.display()
+                    ))
+                })?;
+                FramePoses::from_trajectory(gt, &stamps, gap, PoseOrigin::GroundTruth { path })
+            }
+            PoseSource::File(path) => {
+                let t = Trajectory::read_tum(path)?;
+                FramePoses::from_trajectory(
+                    &t,
+                    &stamps,
+                    gap,
+                    PoseOrigin::File { path: path.clone() },
+                )
+            }
+            PoseSource::Own => {
+                let prev = previous.ok_or_else(|| {
+                    Error::Input(format!("no trajectory before weighted pass {k}"))
+                })?;
+                FramePoses::from_pass(prev, &stamps, k - 1)
+            }
+        }
+    }
+
+    /// The maps of weighted pass `k` (1-based) with `poses`: the sequence's own `prob/` for
+    /// the first pass when allowed, else from the cache or computed.
+    fn maps_for(&self, k: usize, poses: &FramePoses, progress: &dyn Progress) -> Result<MapSet> {
+        let job = MapJob::new(self.input, self.config, poses);
+        let label = format!("motion maps (pass {k})");
+        cached_maps(&job, &self.cache_dir(), &label, progress)
+    }
+
+    /// The sequence's own maps, when this run uses them for the first weighted pass.
+    fn sequence_maps(&self) -> Result<Option<MapSet>> {
+        let own = self.input.sequence.prob_dir.clone();
+        let usable = self.config.method.terms() == Some(Terms::Full)
+            && !self.options.recompute_maps
+            && own.is_dir();
+        if !usable {
+            return Ok(None);
+        }
+        MapSet::existing(MapFolder::new(own), "sequence prob/ folder").map(Some)
+    }
+
+    /// The first pass (when needed) and the maps of the first weighted pass, without the
+    /// weighted pass itself (what a batch of runs prepares once). `None` for ORB-SLAM2.
+    pub fn prepare(
+        &self,
+        progress: &dyn Progress,
+    ) -> Result<(Option<FirstPassResult>, Option<MapSet>)> {
+        if self.config.method.terms().is_none() {
+            return Ok((None, None));
+        }
+        if let Some(m) = self.sequence_maps()? {
+            return Ok((None, Some(m)));
+        }
+        let needs_first = MapJob::needs_poses(self.input, self.config)
+            && self.config.motion.poses == PoseSource::Own;
+        let first = if needs_first {
+            Some(self.first_pass(progress)?)
+        } else {
+            None
+        };
+        let poses = self.poses_for(1, first.as_ref().map(|f| &f.trajectory))?;
+        let maps = self.maps_for(1, &poses, progress)?;
+        Ok((first, Some(maps)))
+    }
+
+    /// The whole run: first pass, maps and weighted passes (or one ORB-SLAM2 pass), with
+    /// relocalisation seed `config.slam.seed`.
+    pub fn run(&self, progress: &dyn Progress) -> Result<OfflineOutput> {
+        self.run_with_seed(self.config.slam.seed, progress)
+    }
+
+    /// [`OfflineRunner::run`] whose final pass uses relocalisation seed `seed` (run k of a
+    /// multi-run experiment uses `seed + k`; the first pass and maps do not depend on it).
+    pub fn run_with_seed(&self, seed: u64, progress: &dyn Progress) -> Result<OfflineOutput> {
+        let method = self.config.method;
+        let mut record = self.base_record();
+        if method.terms().is_none() {
+            let out = self.pass(method, None, seed, &format!("{method} 0"), progress)?;
+            record["passes"] = json!([{"maps": null, "stats": out.stats}]);
+            return Ok(OfflineOutput {
+                first_pass: None,
+                maps: Vec::new(),
+                passes: vec![out],
+                record,
+            });
+        }
+        let (first, first_maps) = self.prepare(progress)?;
+        let mut maps = Vec::new();
+        let mut passes: Vec<PassOutput> = Vec::new();
+        let n = self.config.passes.weighted;
+        let fixed = self.config.motion.poses != PoseSource::Own;
+        for k in 1..=n {
+            let m = if k == 1 {
+                first_maps
+                    .clone()
+                    .ok_or_else(|| Error::Input("no maps".into()))?
+            } else if fixed || !MapJob::needs_poses(self.input, self.config) {
+                maps.last()
+                    .cloned()
+                    .ok_or_else(|| Error::Input("no maps".into()))?
+            } else {
+                let last = passes
+                    .last()
+                    .ok_or_else(|| Error::Input("no pass".into()))?;
+                let prev = as_written(&last.trajectory)?;
+                let poses = self.poses_for(k, Some(&prev))?;
+                self.maps_for(k, &poses, progress)?
+            };
+            let label = if n == 1 {
+                format!("{method} 0")
+            } else {
+                format!("{method} pass {k}")
+            };
+            let out = self.pass(method, Some(&m), seed, &label, progress)?;
+            maps.push(m);
+            passes.push(out);
+        }
+        let gt_used = maps
+            .iter()
+            .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
+        record["ground_truth_used_at_run_time"] = json!(gt_used);
+        record["first_pass"] = first.as_ref().map_or(Value::Null, |f| f.record.clone());
+        record["prob"] = maps.first().map_or(Value::Null, |m| m.record.clone());
+        record["passes"] = Value::Array(
+            maps.iter()
+                .zip(&passes)
+                .map(|(m, p)| json!({"maps": m.record, "stats": p.stats}))
+                .collect(),
+        );
+        Ok(OfflineOutput {
+            first_pass: first,
+            maps,
+            passes,
+            record,
+        })
+    }
+
+    /// The record fields every run has.
+    fn base_record(&self) -> Value {
+        let c = self.config;
+        let p = c.system_params();
+        let d = &p.map.dynapix;
+        json!({
+            "sequence": self.input.record(),
+            "method": c.method.name(),
+            "mode": c.mode.name(),
+            "oracle_poses": c.motion.poses == PoseSource::GroundTruth,
+            "ground_truth_used_at_run_time": false,
+            "loop_closing": p.loop_closing.enabled,
+            "masks": c.method.needs_masks().then(|| self.masks_dir()),
+            "dynapix": {
+                "weighting": format!("{:?}", d.weighting),
+                "gamma_add": d.gamma_add,
+                "gamma_del": d.gamma_del,
+                "update": format!("{:?}", d.update),
+                "ba_weight_clamp": dynapix_slam::dynapix::ba_weight_clamp(d),
+                "threshold": c.method.thresholds().then_some(d.gamma_add),
+            },
+            "config": c.to_json_value(),
+        })
+    }
+}

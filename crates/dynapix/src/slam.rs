@@ -1,0 +1,359 @@
+//! One SLAM pass over a sequence: the ORB-SLAM2-class system of `dynapix-slam` fed frame by
+//! frame, optionally with static weights (DynaPix) and semantic masks (DynaPix+), and what a
+//! pass leaves: the trajectory, per-frame status and timing, keyframes, closed loops.
+//!
+//! Images (and weight maps) are decoded on a helper thread a few frames ahead of tracking;
+//! the system itself runs its stages in a fixed order on the calling thread, so a pass is
+//! deterministic.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::sync_channel;
+use std::time::Instant;
+
+use dynapix_io::images::{read_mask, read_static_weights};
+use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
+use dynapix_slam::loop_closing::LoopEvent;
+use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
+use dynapix_slam::system::{FrameInput, FrameResult, System, SystemParams};
+use dynapix_slam::tracking::TrackingState;
+use dynapix_slam::vocab::Vocabulary;
+use image::{GrayImage, RgbImage};
+use serde::Serialize;
+
+use crate::config::VocabularyChoice;
+use crate::error::{Error, Result};
+use crate::input::{Camera, Input};
+use crate::progress::{Progress, Task};
+
+/// The status-file value of a tracking state.
+pub fn frame_status(state: TrackingState) -> FrameStatus {
+    match state {
+        TrackingState::Ok => FrameStatus::Tracked,
+        TrackingState::Lost => FrameStatus::Lost,
+        TrackingState::NotInitialized => FrameStatus::NotInitialized,
+    }
+}
+
+/// Loads the vocabulary of a run.
+pub fn load_vocabulary(choice: &VocabularyChoice) -> Result<Option<Vocabulary>> {
+    match choice {
+        VocabularyChoice::None => Ok(None),
+        VocabularyChoice::Embedded => {
+            Vocabulary::embedded_default()
+                .map(Some)
+                .map_err(|source| Error::Vocabulary {
+                    path: PathBuf::from("<embedded>"),
+                    source,
+                })
+        }
+        VocabularyChoice::File(p) => {
+            Vocabulary::load(p)
+                .map(Some)
+                .map_err(|source| Error::Vocabulary {
+                    path: p.clone(),
+                    source,
+                })
+        }
+    }
+}
+
+/// Step times of one frame, in milliseconds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FrameTiming {
+    /// Frame index.
+    pub index: u64,
+    /// Frame time (s).
+    pub timestamp: f64,
+    /// Feature extraction.
+    pub extract_ms: f64,
+    /// Tracking without extraction.
+    pub track_ms: f64,
+    /// Local mapping.
+    pub mapping_ms: f64,
+    /// Loop closing.
+    pub loop_ms: f64,
+    /// A keyframe was created.
+    pub keyframe: bool,
+    /// State after the frame.
+    #[serde(serialize_with = "status_word")]
+    pub status: FrameStatus,
+}
+
+fn status_word<S: serde::Serializer>(
+    s: &FrameStatus,
+    ser: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    ser.serialize_str(s.as_str())
+}
+
+/// Counters of a pass.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PassStats {
+    /// Frames processed.
+    pub frames: usize,
+    /// Frames tracked.
+    pub tracked: usize,
+    /// Keyframes in the final map.
+    pub keyframes: usize,
+    /// Map points in the final map.
+    pub map_points: usize,
+    /// Loops closed.
+    pub loops_closed: usize,
+    /// Wall-clock seconds of the pass.
+    pub seconds: f64,
+    /// Frames that ran unweighted because their probability map was missing.
+    pub frames_without_prob_map: usize,
+}
+
+/// What a pass leaves.
+#[derive(Clone, Debug)]
+pub struct PassOutput {
+    /// Tracked frames with their current (BA-refined) camera-to-world pose.
+    pub trajectory: Trajectory,
+    /// Per frame: tracked / lost / not initialised.
+    pub status: Vec<StampedStatus>,
+    /// Keyframes in the final map, by creation.
+    pub keyframes: Trajectory,
+    /// Loops closed, in order.
+    pub loops: Vec<LoopEvent>,
+    /// Per-frame step times.
+    pub timings: Vec<FrameTiming>,
+    /// Counters.
+    pub stats: PassStats,
+}
+
+/// A SLAM system being fed frames, with the bookkeeping of a pass.
+pub struct SlamSession {
+    system: System<OrbExtractor>,
+    status: Vec<StampedStatus>,
+    timings: Vec<FrameTiming>,
+    started: Instant,
+    missing_weights: usize,
+}
+
+impl SlamSession {
+    /// A system for `camera` (its ORB settings and intrinsics) with `params`.
+    pub fn new(
+        camera: &Camera,
+        params: SystemParams,
+        vocabulary: Option<Vocabulary>,
+    ) -> Result<Self> {
+        let extractor = OrbExtractor::new(camera.orb_params()?)?;
+        let mut system = System::new(extractor, camera.rgbd(), params);
+        if let Some(v) = vocabulary {
+            system = system.with_vocabulary(v);
+        }
+        Ok(Self {
+            system,
+            status: Vec::new(),
+            timings: Vec::new(),
+            started: Instant::now(),
+            missing_weights: 0,
+        })
+    }
+
+    /// The system.
+    pub fn system(&self) -> &System<OrbExtractor> {
+        &self.system
+    }
+
+    /// The system, mutably (e.g. to enter localisation mode before the first frame).
+    pub fn system_mut(&mut self) -> &mut System<OrbExtractor> {
+        &mut self.system
+    }
+
+    /// A short status of the map, for progress messages.
+    pub fn summary(&self) -> String {
+        let st = self.status.last().map_or("-", |s| s.status.as_str());
+        format!(
+            "{st} kf {} mp {}",
+            self.system.map().num_keyframes(),
+            self.system.map().num_points()
+        )
+    }
+
+    /// Tracks one frame (colour image converted to grey like ORB-SLAM2).
+    pub fn track(
+        &mut self,
+        t: f64,
+        rgb: &RgbImage,
+        depth: &DepthImage,
+        weights: Option<&StaticWeights>,
+        mask: Option<&GrayImage>,
+    ) -> Result<FrameResult> {
+        let gray = rgb_to_gray_orbslam(rgb);
+        let res = self.system.process(FrameInput {
+            timestamp: t,
+            gray: &gray,
+            depth,
+            weights,
+            masks: mask,
+        })?;
+        let st = frame_status(res.state);
+        self.status.push(StampedStatus { t, status: st });
+        self.timings.push(FrameTiming {
+            index: res.index,
+            timestamp: t,
+            extract_ms: res.times.extract * 1e3,
+            track_ms: res.times.track * 1e3,
+            mapping_ms: res.times.mapping * 1e3,
+            loop_ms: res.times.loop_closing * 1e3,
+            keyframe: res.new_keyframe,
+            status: st,
+        });
+        Ok(res)
+    }
+
+    /// Counts a frame that ran unweighted because its map was missing.
+    pub fn note_missing_weights(&mut self) {
+        self.missing_weights += 1;
+    }
+
+    /// What the pass has produced so far.
+    pub fn output(&self) -> PassOutput {
+        let trajectory = Trajectory::new(
+            self.system
+                .trajectory()
+                .into_iter()
+                .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
+                .collect(),
+        );
+        let keyframes = Trajectory::new(
+            self.system
+                .keyframe_trajectory()
+                .into_iter()
+                .map(|(t, p)| StampedPose::new(t, p))
+                .collect(),
+        );
+        let tracked = self
+            .status
+            .iter()
+            .filter(|s| s.status == FrameStatus::Tracked)
+            .count();
+        PassOutput {
+            trajectory,
+            status: self.status.clone(),
+            keyframes,
+            loops: self.system.loop_events().to_vec(),
+            timings: self.timings.clone(),
+            stats: PassStats {
+                frames: self.status.len(),
+                tracked,
+                keyframes: self.system.map().num_keyframes(),
+                map_points: self.system.map().num_points(),
+                loops_closed: self.system.loop_events().len(),
+                seconds: self.started.elapsed().as_secs_f64(),
+                frames_without_prob_map: self.missing_weights,
+            },
+        }
+    }
+}
+
+/// The weights of a pass.
+#[derive(Clone, Copy, Debug)]
+pub enum PassWeights<'a> {
+    /// None (ORB-SLAM2).
+    None,
+    /// Probability maps in a folder, named like the rgb images (`.png`).
+    Maps {
+        /// The folder.
+        dir: &'a Path,
+        /// Threshold ablation: P > γ drops a keypoint, the rest weighs 1.
+        threshold: Option<f32>,
+        /// A missing map runs its frame unweighted (counted) instead of stopping the pass.
+        allow_missing: bool,
+    },
+}
+
+/// One decoded frame of a pass.
+struct Decoded {
+    t: f64,
+    images: Result<(RgbImage, DepthImage)>,
+    weights: Result<Option<StaticWeights>>,
+    mask: Result<Option<GrayImage>>,
+    missing: bool,
+}
+
+fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path>) -> Decoded {
+    let t = input.sequence.frames[i].t;
+    let images = input.load_rgbd(i);
+    let name = input.map_name(i);
+    let mut missing = false;
+    let weights = match (weights, &name) {
+        (PassWeights::None, _) => Ok(None),
+        (PassWeights::Maps { .. }, None) => {
+            Err(Error::Input(format!("frame {i} has no file name")))
+        }
+        (
+            PassWeights::Maps {
+                dir,
+                threshold,
+                allow_missing,
+            },
+            Some(name),
+        ) => {
+            let p = dir.join(name);
+            if allow_missing && !p.exists() {
+                missing = true;
+                Ok(None)
+            } else {
+                read_static_weights(&p)
+                    .map(|w| match threshold {
+                        Some(g) => Some(w.thresholded(g)),
+                        None => Some(w),
+                    })
+                    .map_err(Error::from)
+            }
+        }
+    };
+    let mask = match masks {
+        None => Ok(None),
+        Some(d) => match input.sequence.rgb_name(i) {
+            Some(n) => read_mask(d.join(n)).map(Some).map_err(Error::from),
+            None => Err(Error::Input(format!("frame {i} has no file name"))),
+        },
+    };
+    Decoded {
+        t,
+        images,
+        weights,
+        mask,
+        missing,
+    }
+}
+
+/// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
+/// masks named like the rgb images), reporting progress as `label`.
+pub fn run_pass(
+    input: &Input,
+    session: &mut SlamSession,
+    weights: PassWeights<'_>,
+    masks: Option<&Path>,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<PassOutput> {
+    let n = input.len();
+    let task = Task::begin(progress, label, n);
+    std::thread::scope(|scope| -> Result<()> {
+        let (tx, rx) = sync_channel::<Decoded>(4);
+        scope.spawn(move || {
+            for i in 0..n {
+                if tx.send(decode(input, i, weights, masks)).is_err() {
+                    break;
+                }
+            }
+        });
+        for d in rx {
+            let (rgb, depth) = d.images?;
+            let (w, m) = (d.weights?, d.mask?);
+            if d.missing {
+                session.note_missing_weights();
+            }
+            session.track(d.t, &rgb, &depth, w.as_ref(), m.as_ref())?;
+            task.step(&session.summary());
+        }
+        Ok(())
+    })?;
+    drop(task);
+    Ok(session.output())
+}

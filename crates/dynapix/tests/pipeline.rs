@@ -1,0 +1,358 @@
+//! DynaPix in process on a small synthetic walking sequence (`dynapix-synth`, 320×240,
+//! generated here): the weighted offline run beats ORB-SLAM2 mode by a ratio, the online
+//! mode keeps a real gain, the motion-map cache is reused only while nothing that determines
+//! the maps changes, and maps made with ground-truth poses are reported as such.
+//! Run in release mode (`cargo test --release`).
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use dynapix::maps::{MapFolder, MapJob, compute_into};
+use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::{
+    CameraChoice, Config, FlowPreset, FramePoses, Input, Method, NoProgress, OnlineDynaPix,
+    PoseOrigin, PoseSource, RgbdFrame, Trajectory,
+};
+use dynapix_synth::{Preset, SceneParams, SynthParams};
+
+const FRAMES: usize = 120;
+
+/// The sequence, generated once per test binary (walking_rpy: the camera turns while two
+/// people walk through the view; ORB-SLAM2 is pulled by them).
+fn sequence() -> &'static Path {
+    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    let (_, dir) = DIR.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("walking_rpy");
+        let cam = dynapix_geometry::PinholeCamera::tum_fr3();
+        let (s, w, h) = (0.5, 320, 240);
+        let camera = dynapix_geometry::PinholeCamera::new(
+            w,
+            h,
+            cam.fx * s,
+            cam.fy * s,
+            cam.cx * s,
+            cam.cy * s,
+        );
+        let p = SynthParams {
+            preset: Preset::WalkingRpy,
+            frames: FRAMES,
+            seed: 0,
+            scene: SceneParams::for_width(w),
+            camera,
+            ..SynthParams::default()
+        };
+        let seq = dynapix_synth::Sequence::new(p).unwrap();
+        dynapix_synth::output::write_sequence(&seq, &dir, None, &mut |_| {}).unwrap();
+        (tmp, dir)
+    });
+    dir
+}
+
+/// A copy of the sequence without `background/` and `depth_bg/` (a camera gives none).
+fn camera_only(into: &Path) -> PathBuf {
+    let dst = into.join("walking_rpy");
+    copy_dir(sequence(), &dst);
+    for d in ["background", "depth_bg"] {
+        std::fs::remove_dir_all(dst.join(d)).unwrap();
+    }
+    dst
+}
+
+fn copy_dir(src: &Path, dst: &Path) {
+    std::fs::create_dir_all(dst).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let e = e.unwrap();
+        let to = dst.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to);
+        } else {
+            std::fs::copy(e.path(), to).unwrap();
+        }
+    }
+}
+
+fn ate(seq: &Path, traj: &Trajectory) -> f64 {
+    let gt = dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt")).unwrap();
+    let est: Vec<_> = traj.poses.iter().map(|p| (p.t, p.pose)).collect();
+    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default()).unwrap();
+    ev.ate.stats.rmse
+}
+
+fn open(dir: &Path, config: &Config) -> Input {
+    Input::open(dir, &config.sequence, &CameraChoice::Sequence).unwrap()
+}
+
+fn offline(config: &Config, input: &Input, cache: &Path) -> dynapix::OfflineOutput {
+    let options = RunOptions {
+        cache_dir: Some(cache.to_path_buf()),
+        ..Default::default()
+    };
+    OfflineRunner::new(config, input, options)
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap()
+}
+
+#[test]
+fn weighted_offline_run_beats_orbslam2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let seq = camera_only(tmp.path());
+    let orb_cfg = Config::default().with_method(Method::Orbslam2);
+    let input = open(&seq, &orb_cfg);
+    let orb = offline(&orb_cfg, &input, &cache);
+    let dpx_cfg = Config::default();
+    let dpx = offline(&dpx_cfg, &input, &cache);
+    let (a_orb, a_dpx) = (
+        ate(&seq, &orb.final_pass().unwrap().trajectory),
+        ate(&seq, &dpx.final_pass().unwrap().trajectory),
+    );
+    eprintln!("offline ATE: orbslam2 {a_orb:.4} m, dynapix {a_dpx:.4} m");
+    assert_eq!(orb.final_pass().unwrap().stats.tracked, FRAMES);
+    assert_eq!(dpx.final_pass().unwrap().stats.tracked, FRAMES);
+    assert!(a_dpx < 0.5 * a_orb, "dynapix {a_dpx} vs orbslam2 {a_orb}");
+    // No ground truth at run time, and the record says where the poses came from.
+    assert_eq!(dpx.record["ground_truth_used_at_run_time"], false);
+    assert_eq!(dpx.record["prob"]["source"], "computed");
+    assert_eq!(dpx.record["prob"]["poses"]["source"], "pass");
+    assert_eq!(dpx.record["config"]["method"], "dynapix");
+}
+
+#[test]
+fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let seq = camera_only(tmp.path());
+    let mut config = Config::default();
+    config.sequence.max_frames = Some(30);
+    config.motion.flow = FlowPreset::Ultrafast;
+    let input = open(&seq, &config);
+    let first = offline(&config, &input, &cache);
+    assert_eq!(first.record["prob"]["source"], "computed");
+    assert_eq!(first.record["first_pass"]["source"], "computed");
+    // Same configuration: maps and first pass come from the cache, same trajectory.
+    let again = offline(&config, &input, &cache);
+    assert_eq!(again.record["prob"]["source"], "cache (key matched)");
+    assert_eq!(again.record["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(
+        again.final_pass().unwrap().trajectory,
+        first.final_pass().unwrap().trajectory
+    );
+    let dir1 = again.final_maps().unwrap().folder.dir.clone();
+    // A motion parameter changes: other key, maps recomputed.
+    let mut changed = config.clone();
+    changed.motion.params.movable.clip_hi += 5.0;
+    let c = offline(&changed, &input, &cache);
+    assert_eq!(c.record["prob"]["source"], "computed");
+    assert_eq!(c.record["first_pass"]["source"], "cache (key matched)");
+    assert_ne!(c.final_maps().unwrap().folder.dir, dir1);
+    // Another first pass (SLAM parameters changed) is run, not taken from the cache.
+    let mut slam = config.clone();
+    slam.slam.params.tracking.motion_th = 14.0;
+    let r = offline(&slam, &input, &cache);
+    assert_eq!(r.record["first_pass"]["source"], "computed");
+    // Poses from a file: the same file is a cache hit, an edited one (same path) is not.
+    let file = tmp.path().join("poses.txt");
+    std::fs::copy(seq.join("groundtruth.txt"), &file).unwrap();
+    let mut from_file = config.clone();
+    from_file.motion.poses = PoseSource::File(file.clone());
+    assert_eq!(
+        offline(&from_file, &input, &cache).record["prob"]["source"],
+        "computed"
+    );
+    assert_eq!(
+        offline(&from_file, &input, &cache).record["prob"]["source"],
+        "cache (key matched)"
+    );
+    let mut gt = Trajectory::read_tum(&file).unwrap();
+    gt.poses[3].pose.translation.vector.x += 0.01;
+    gt.write_tum(&file).unwrap();
+    assert_eq!(
+        offline(&from_file, &input, &cache).record["prob"]["source"],
+        "computed"
+    );
+    // A map deleted from a cached folder: recomputed in place, same result.
+    let victim = std::fs::read_dir(&dir1)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "png"))
+        .unwrap();
+    std::fs::remove_file(&victim).unwrap();
+    let d = offline(&config, &input, &cache);
+    assert_eq!(d.record["prob"]["source"], "computed");
+    assert!(victim.is_file());
+    assert_eq!(
+        d.final_pass().unwrap().trajectory,
+        first.final_pass().unwrap().trajectory
+    );
+    // Fewer frames: another frame list, another key.
+    let mut short = config.clone();
+    short.sequence.max_frames = Some(20);
+    let short_input = open(&seq, &short);
+    let s = offline(&short, &short_input, &cache);
+    assert_eq!(s.record["prob"]["source"], "computed");
+    assert_eq!(s.final_pass().unwrap().status.len(), 20);
+}
+
+#[test]
+fn online_mode_keeps_a_real_gain() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = camera_only(tmp.path());
+    let run = |config: &Config| -> (Trajectory, usize) {
+        let input = open(&seq, config);
+        let mut online = OnlineDynaPix::new(&input.camera, config).unwrap();
+        let mut results = Vec::new();
+        for i in 0..input.len() {
+            let (rgb, depth) = input.load_rgbd(i).unwrap();
+            let t = input.sequence.frames[i].t;
+            results.extend(online.push(RgbdFrame::new(t, rgb, depth)).unwrap());
+        }
+        results.extend(online.finish().unwrap());
+        assert!(results.windows(2).all(|w| w[0].index + 1 == w[1].index));
+        let lag = results.iter().map(|r| r.latency_frames).max().unwrap_or(0);
+        let traj = Trajectory::new(
+            results
+                .iter()
+                .filter_map(|r| r.pose_wc.map(|p| dynapix_io::StampedPose::new(r.t, p)))
+                .collect(),
+        );
+        (traj, lag)
+    };
+    let (orb, _) = run(&Config::default().with_method(Method::Orbslam2));
+    let (dpx, lag) = run(&Config::default());
+    let (a_orb, a_dpx) = (ate(&seq, &orb), ate(&seq, &dpx));
+    eprintln!("online ATE: orbslam2 {a_orb:.4} m, dynapix {a_dpx:.4} m");
+    assert_eq!(lag, 0, "without lookahead every pose comes with its frame");
+    assert_eq!(orb.len(), FRAMES);
+    assert_eq!(dpx.len(), FRAMES);
+    assert!(
+        a_dpx < 0.6 * a_orb,
+        "online dynapix {a_dpx} vs orbslam2 {a_orb}"
+    );
+}
+
+#[test]
+fn lookahead_reports_every_frame_late_by_the_allowed_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = camera_only(tmp.path());
+    let mut config = Config::default();
+    config.online.lookahead = 2;
+    config.sequence.max_frames = Some(12);
+    let input = open(&seq, &config);
+    let mut online = OnlineDynaPix::new(&input.camera, &config).unwrap();
+    let mut got = Vec::new();
+    for i in 0..input.len() {
+        let (rgb, depth) = input.load_rgbd(i).unwrap();
+        let t = input.sequence.frames[i].t;
+        let r = online
+            .push(RgbdFrame::new(t, rgb.clone(), depth.clone()))
+            .unwrap();
+        match (i < 2, &r) {
+            (true, None) => {}
+            (false, Some(r)) => assert_eq!((r.index, r.latency_frames), (i - 2, 2)),
+            _ => panic!("frame {i}: {r:?}"),
+        }
+        got.extend(r);
+        if i == 5 {
+            // Bad input is refused with a message and changes nothing.
+            let small = image::RgbImage::new(10, 10);
+            let e = online
+                .push(RgbdFrame::new(t + 0.001, small, depth.clone()))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("320×240"), "{e}");
+            let e = online
+                .push(RgbdFrame::new(t, rgb, depth))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("not after"), "{e}");
+        }
+    }
+    let tail = online.finish().unwrap();
+    assert_eq!(
+        tail.iter().map(|r| r.latency_frames).collect::<Vec<_>>(),
+        vec![1, 0]
+    );
+    got.extend(tail);
+    assert_eq!(got.len(), 12);
+    assert!(got.iter().all(|r| r.pose_wc.is_some()));
+}
+
+#[test]
+fn maps_made_with_ground_truth_poses_are_reported_as_such() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    copy_dir(sequence(), &seq);
+    let mut config = Config::default();
+    config.sequence.max_frames = Some(20);
+    config.motion.flow = FlowPreset::Ultrafast;
+    let input = open(&seq, &config);
+    // `dynapix motion --poses gt` writes SEQ/prob with its record.
+    let gt = input.sequence.groundtruth.clone().unwrap();
+    let poses = FramePoses::from_trajectory(
+        &gt,
+        &input.timestamps(),
+        0.05,
+        PoseOrigin::GroundTruth {
+            path: seq.join("groundtruth.txt"),
+        },
+    )
+    .unwrap();
+    let job = MapJob::new(&input, &config, &poses);
+    let folder = MapFolder::new(seq.join("prob"));
+    compute_into(&job, &folder, &job.record(), "maps", &NoProgress).unwrap();
+    // A run with its own poses uses the sequence's maps and says that ground truth made them.
+    let input = open(&seq, &config);
+    let options = RunOptions {
+        cache_dir: Some(tmp.path().join("cache")),
+        ..Default::default()
+    };
+    let out = OfflineRunner::new(&config, &input, options.clone())
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap();
+    assert_eq!(out.record["prob"]["source"], "sequence prob/ folder");
+    assert_eq!(out.record["prob"]["poses"], "ground truth");
+    assert_eq!(out.record["ground_truth_used_at_run_time"], true);
+    assert!(
+        out.first_pass.is_none(),
+        "the sequence's maps need no first pass"
+    );
+    // Without a record the provenance is unknown, not "no ground truth".
+    std::fs::remove_file(seq.join("prob/motion.json")).unwrap();
+    let input = open(&seq, &config);
+    let out = OfflineRunner::new(&config, &input, options.clone())
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap();
+    assert!(out.record["ground_truth_used_at_run_time"].is_null());
+    // Recomputing ignores them and records the own poses.
+    let recompute = RunOptions {
+        recompute_maps: true,
+        ..options
+    };
+    let out = OfflineRunner::new(&config, &input, recompute)
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap();
+    assert_eq!(out.record["ground_truth_used_at_run_time"], false);
+    assert_eq!(out.record["prob"]["source"], "computed");
+    // Oracle poses are ground truth at run time.
+    let mut oracle = config.clone();
+    oracle.motion.poses = PoseSource::GroundTruth;
+    let out = OfflineRunner::new(
+        &oracle,
+        &input,
+        RunOptions {
+            recompute_maps: true,
+            cache_dir: Some(tmp.path().join("cache")),
+            ..Default::default()
+        },
+    )
+    .unwrap()
+    .run(&NoProgress)
+    .unwrap();
+    assert_eq!(out.record["ground_truth_used_at_run_time"], true);
+    assert_eq!(out.record["oracle_poses"], true);
+}
