@@ -101,7 +101,15 @@ fn writes_reference_format_maps_and_resumes() {
     let seq = tmp.path();
     write_sequence(seq);
     let s = seq.to_str().unwrap();
-    let out = dynapix(&["motion", s, "--eval-masks", "--float-maps", "--pictures"]);
+    let out = dynapix(&[
+        "motion",
+        "--cues",
+        "paper",
+        s,
+        "--eval-masks",
+        "--float-maps",
+        "--pictures",
+    ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -149,7 +157,7 @@ fn writes_reference_format_maps_and_resumes() {
     assert!(stdout.contains("ROC-AUC"));
 
     // Second run: everything exists, nothing is recomputed.
-    let out = dynapix(&["motion", s]);
+    let out = dynapix(&["motion", "--cues", "paper", s]);
     assert!(out.status.success());
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(seq.join("prob/motion.json")).unwrap())
@@ -157,9 +165,17 @@ fn writes_reference_format_maps_and_resumes() {
     assert_eq!(json["results"]["frames_computed"], 0);
     assert_eq!(json["results"]["frames_skipped"], N);
     // Other settings on top of existing results are refused without --force.
-    let out = dynapix(&["motion", s, "--mode", "reference"]);
+    let out = dynapix(&["motion", "--cues", "paper", s, "--mode", "reference"]);
     assert!(!out.status.success());
-    let out = dynapix(&["motion", s, "--mode", "reference", "--force"]);
+    let out = dynapix(&[
+        "motion",
+        "--cues",
+        "paper",
+        s,
+        "--mode",
+        "reference",
+        "--force",
+    ]);
     assert!(
         out.status.success(),
         "{}",
@@ -176,6 +192,8 @@ fn reconstructed_background_runs_without_background_folder() {
     let s = seq.to_str().unwrap();
     let out = dynapix(&[
         "motion",
+        "--cues",
+        "paper",
         s,
         "--background",
         "reconstruct",
@@ -209,7 +227,14 @@ fn bad_input_lists_every_offending_frame_and_writes_nothing() {
     let gt = std::fs::read_to_string(seq.join("groundtruth.txt")).unwrap();
     let kept: Vec<&str> = gt.lines().take(N - 1).collect(); // header + frames 0..5
     std::fs::write(seq.join("groundtruth.txt"), kept.join("\n") + "\n").unwrap();
-    let out = dynapix(&["motion", seq.to_str().unwrap(), "--background", "folder"]);
+    let out = dynapix(&[
+        "motion",
+        "--cues",
+        "paper",
+        seq.to_str().unwrap(),
+        "--background",
+        "folder",
+    ]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(

@@ -24,6 +24,7 @@
 
 pub mod align;
 pub mod background;
+pub mod combine;
 pub mod metrics;
 pub mod movable;
 pub mod moving;
@@ -43,6 +44,7 @@ use serde::{Deserialize, Serialize};
 pub use background::{Background, ReconstructParams, Source, Statistic, reconstruct_background};
 pub use movable::{Movable, MovableParams, movable};
 
+pub use combine::noisy_or;
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use rigidity::{

@@ -86,8 +86,9 @@ pub struct RigidityParams {
     pub r0: f64,
     /// Residual at and above which P = 1.
     pub r1: f64,
-    /// Neighbour frame offsets a caller should pass (e.g. `[-1, 1]`); the functions of this
-    /// module take the neighbours themselves.
+    /// Neighbour frame offsets a caller should pass (`[-4, -1, 1, 4]`: two baselines, so a
+    /// slow mover shows at the longer one; a side whose best motion is ambiguous gives no
+    /// evidence); the functions of this module take the neighbours themselves.
     pub offsets: Vec<i64>,
     /// Smallest inlier fraction of a pair's best motion (0.5): below it movers may be the
     /// majority and the pair is ambiguous, so it gives no evidence.
@@ -113,7 +114,7 @@ impl Default for RigidityParams {
             min_projected_depth: 0.05,
             r0: 3.0,
             r1: 8.0,
-            offsets: vec![-1, 1],
+            offsets: vec![-4, -1, 1, 4],
             min_inlier_fraction: 0.5,
         }
     }

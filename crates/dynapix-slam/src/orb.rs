@@ -544,6 +544,13 @@ impl crate::system::FeatureExtractor for OrbExtractor {
     fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         OrbExtractor::extract(self, image)
     }
+    fn extract_where(
+        &mut self,
+        image: &GrayImage,
+        keep: Option<&KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        OrbExtractor::extract_where(self, image, keep)
+    }
     fn pyramid(&self) -> crate::frame::ScalePyramid {
         crate::frame::ScalePyramid::new(self.nlevels(), self.scale_factor())
     }

@@ -219,6 +219,12 @@ impl Tracker {
     ) -> TrackOutcome {
         let mut out = self.empty_outcome();
         if self.state == TrackingState::NotInitialized {
+            tracing::debug!(
+                frame = frame.id,
+                keypoints = frame.len(),
+                needed = self.params.init_min_features + 1,
+                "initialisation"
+            );
             if frame.len() > self.params.init_min_features
                 && frame.depth.iter().filter(|&&d| d > 0.0).count() > 0
             {

@@ -16,7 +16,9 @@ use std::path::{Path, PathBuf};
 
 use dynapix_flow::dis::{DisParams, Preset};
 use dynapix_io::Pairing;
-use dynapix_motion::{Backgrounds, MotionParams, ReconstructParams, Variant};
+use dynapix_motion::{
+    Backgrounds, MotionParams, ReconstructParams, RigidityParams, StaticDepthParams, Variant,
+};
 use dynapix_slam::dynapix::DynaPixParams;
 use dynapix_slam::system::SystemParams;
 use serde::{Deserialize, Serialize};
@@ -144,6 +146,102 @@ pub struct MotionConfig {
     pub poses: PoseSource,
     /// Largest distance (s) from a frame to the nearest pose of a trajectory (0.05).
     pub max_pose_gap: f64,
+    /// Which cues make up P (combined by noisy-or: P = 1 − Π(1 − P_cue)).
+    pub cues: Cues,
+    /// Static depth and the geometric cue.
+    pub static_depth: StaticDepthParams,
+    /// The pose-free rigidity cue (and the rigidity-weighted first pass).
+    pub rigidity: RigidityParams,
+}
+
+/// The cues of the motion probability. Each is a switch, a line in `motion.json` and an
+/// ablation row; the enabled ones combine by noisy-or, `P = 1 − Π(1 − P_cue)` (a pixel is
+/// static only when no cue says it moves).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Cues {
+    /// The paper's terms: P = D·M (movable × moving; the ablation methods switch one off).
+    pub paper: bool,
+    /// The geometric cue: a pixel much nearer than the static depth that a wide window of
+    /// views (seconds, past and future, splatted with the poses) sees there is not static.
+    pub geometric: bool,
+    /// The rigidity cue: the residual of each pixel against the dominant rigid motion to its
+    /// neighbour frames, fitted by RANSAC on depth-backed optical flow (needs no poses).
+    pub rigidity: bool,
+}
+
+impl Cues {
+    /// The paper's terms alone (the reference and the paper).
+    pub const PAPER: Cues = Cues {
+        paper: true,
+        geometric: false,
+        rigidity: false,
+    };
+
+    /// The defaults of `mode`. Paper mode: the geometric and the rigidity cue. The paper's
+    /// terms are a switch: on the Bonn window they changed the ATE by less than a millimetre
+    /// (0.0159 m with them, 0.0162 m without) at six times the compute (BENCHMARKS.md), since
+    /// a background reconstructed from ±15 frames cannot see behind people who stay. Reference
+    /// mode: the paper's terms alone.
+    pub fn for_mode(mode: Mode) -> Self {
+        match mode {
+            Mode::Paper => Cues {
+                paper: false,
+                geometric: true,
+                rigidity: true,
+            },
+            Mode::Reference => Cues::PAPER,
+        }
+    }
+
+    /// The names of the enabled cues, e.g. `paper+geometric+rigidity`.
+    pub fn name(&self) -> String {
+        let mut v = Vec::new();
+        if self.paper {
+            v.push("paper");
+        }
+        if self.geometric {
+            v.push("geometric");
+        }
+        if self.rigidity {
+            v.push("rigidity");
+        }
+        if v.is_empty() {
+            "none".into()
+        } else {
+            v.join("+")
+        }
+    }
+}
+
+/// One cue, by name (command lines: `--cues paper,geometric,rigidity`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Cue {
+    /// The paper's terms, D·M.
+    Paper,
+    /// The geometric cue.
+    Geometric,
+    /// The rigidity cue.
+    Rigidity,
+}
+
+impl Cues {
+    /// Exactly the cues listed.
+    pub fn only(list: &[Cue]) -> Self {
+        Cues {
+            paper: list.contains(&Cue::Paper),
+            geometric: list.contains(&Cue::Geometric),
+            rigidity: list.contains(&Cue::Rigidity),
+        }
+    }
+}
+
+impl Default for Cues {
+    fn default() -> Self {
+        Cues::for_mode(Mode::Paper)
+    }
 }
 
 /// The bag-of-words vocabulary of the SLAM system.
@@ -187,10 +285,24 @@ impl Default for SlamConfig {
 /// The pass that gives the poses of the first motion maps.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum FirstPass {
-    /// Plain ORB-SLAM2 over the whole sequence.
+    /// Plain ORB-SLAM2 over the whole sequence (the paper).
     #[default]
     Orbslam2,
+    /// The method's SLAM weighted by the pose-free rigidity cue alone: a first pass that
+    /// does not follow a crowd, so the first splatted maps start from usable poses.
+    Rigidity,
+}
+
+impl FirstPass {
+    /// The name in records.
+    pub fn name(self) -> &'static str {
+        match self {
+            FirstPass::Orbslam2 => "orbslam2",
+            FirstPass::Rigidity => "rigidity",
+        }
+    }
 }
 
 /// Offline passes: first pass → maps → weighted pass, repeated `weighted` times, the maps of
@@ -200,16 +312,31 @@ pub enum FirstPass {
 pub struct PassConfig {
     /// The first pass.
     pub first: FirstPass,
-    /// Number of weighted passes (1).
+    /// Number of weighted passes (paper mode 2: the maps of the second are splatted with the
+    /// poses of the first; reference mode 1, the paper's schedule).
     pub weighted: usize,
+}
+
+impl PassConfig {
+    /// The defaults of `mode`: a rigidity-weighted first pass and two weighted passes in
+    /// paper mode; ORB-SLAM2 and one weighted pass (the paper's schedule) in reference mode.
+    pub fn for_mode(mode: Mode) -> Self {
+        match mode {
+            Mode::Paper => Self {
+                first: FirstPass::Rigidity,
+                weighted: 2,
+            },
+            Mode::Reference => Self {
+                first: FirstPass::Orbslam2,
+                weighted: 1,
+            },
+        }
+    }
 }
 
 impl Default for PassConfig {
     fn default() -> Self {
-        Self {
-            first: FirstPass::Orbslam2,
-            weighted: 1,
-        }
+        Self::for_mode(Mode::Paper)
     }
 }
 
@@ -267,15 +394,45 @@ impl Config {
                 reconstruct: ReconstructParams::default(),
                 poses: PoseSource::Own,
                 max_pose_gap: 0.05,
+                cues: Cues::for_mode(mode),
+                static_depth: StaticDepthParams::default(),
+                rigidity: RigidityParams::default(),
             },
             slam: SlamConfig {
-                params: SystemParams::default().with_dynapix(DynaPixParams::new(mode.weighting())),
+                params: Self::slam_defaults(mode),
                 vocabulary: VocabularyChoice::Embedded,
                 seed: 0,
             },
-            passes: PassConfig::default(),
+            passes: PassConfig::for_mode(mode),
             online: OnlineConfig::default(),
         }
+    }
+
+    /// The SLAM defaults of `mode`. Paper mode adds two safeguards among movers to the
+    /// paper's weighting: keypoints are extracted only where w ≥ 0.5 (a frame's feature
+    /// budget is not spent on people), and when every tracking method fails the local map is
+    /// tracked from the constant-velocity prediction for up to 30 frames (a crowd in front of
+    /// the camera does not lose it). Reference mode keeps ORB-SLAM2's behaviour.
+    pub fn slam_defaults(mode: Mode) -> SystemParams {
+        let mut p = SystemParams::default().with_dynapix(DynaPixParams::new(mode.weighting()));
+        if mode == Mode::Paper {
+            p.static_features_min_weight = Some(0.5);
+            p.tracking.predicted_frames = 30;
+        }
+        p
+    }
+
+    /// The cues of the method's maps: the paper's ablations (no-movable, no-moving) are
+    /// ablations of the paper's terms and always use them.
+    pub fn cues(&self) -> Cues {
+        let mut c = self.motion.cues;
+        if matches!(
+            self.method.terms(),
+            Some(Terms::NoMovable | Terms::NoMoving)
+        ) {
+            c.paper = true;
+        }
+        c
     }
 
     /// This configuration with `method`.
@@ -448,6 +605,33 @@ impl Config {
                 "online.past_offsets must be negative (the moving term uses past neighbours only)",
             ));
         }
+        if self.method.terms().is_some() {
+            let c = self.cues();
+            if !(c.paper || c.geometric || c.rigidity) {
+                return Err(Error::config(
+                    "motion.cues: every cue is off; enable at least one of paper, geometric, \
+                     rigidity (or use method orbslam2)",
+                ));
+            }
+        }
+        self.motion
+            .static_depth
+            .validate()
+            .map_err(|e| Error::config(format!("motion.static_depth: {e}")))?;
+        self.motion
+            .rigidity
+            .validate()
+            .map_err(|e| Error::config(format!("motion.rigidity: {e}")))?;
+        if self.motion.rigidity.offsets.contains(&0) {
+            return Err(Error::config("motion.rigidity.offsets must not contain 0"));
+        }
+        if let Some(w) = self.slam.params.static_features_min_weight
+            && !(0.0..=1.0).contains(&w)
+        {
+            return Err(Error::config(format!(
+                "slam.params.static_features_min_weight must lie in [0, 1], got {w}"
+            )));
+        }
         if self.online.window == 0 {
             return Err(Error::config("online.window must be at least 1"));
         }
@@ -490,6 +674,11 @@ impl Config {
     pub fn system_params(&self) -> SystemParams {
         let mut p = self.slam.params.clone();
         p.map.dynapix.weighting = self.method.weighting(self.mode);
+        if self.method == Method::Orbslam2 {
+            // ORB-SLAM2 mode is ORB-SLAM2: no static-feature mask, no predicted tracking.
+            p.static_features_min_weight = None;
+            p.tracking.predicted_frames = 0;
+        }
         p
     }
 
@@ -551,11 +740,22 @@ mod tests {
         let p = Config::default();
         p.validate().unwrap();
         assert_eq!(p.mode, Mode::Paper);
-        assert_eq!(p.slam.params, SystemParams::default());
+        // ORB-SLAM2 mode is ORB-SLAM2: unweighted, no static-feature mask, no prediction.
+        let orb = p.clone().with_method(Method::Orbslam2).system_params();
+        assert_eq!(orb.tracking, SystemParams::default().tracking);
+        assert_eq!(orb.static_features_min_weight, None);
+        assert_eq!(orb.map.dynapix.weighting, Weighting::Off);
+        assert_eq!(p.system_params().static_features_min_weight, Some(0.5));
+        assert_eq!(p.system_params().tracking.predicted_frames, 30);
+        assert_eq!(p.passes.first, FirstPass::Rigidity);
+        assert!(p.cues().geometric && p.cues().rigidity);
         let r = Config::new(Mode::Reference);
         r.validate().unwrap();
         assert_eq!(r.motion.params.splat.mode, dynapix_motion::Mode::Reference);
         assert_eq!(r.slam.params.map.dynapix.update, ProbUpdate::Latest);
+        assert_eq!(r.motion.cues, Cues::PAPER);
+        assert_eq!(r.passes, PassConfig::for_mode(Mode::Reference));
+        assert_eq!(r.slam.params.static_features_min_weight, None);
         assert_eq!(
             r.clone()
                 .with_method(Method::Orbslam2)

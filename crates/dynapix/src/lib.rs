@@ -52,6 +52,7 @@
 #![deny(missing_docs)]
 
 pub mod config;
+pub mod cues;
 pub mod error;
 pub mod hash;
 pub mod input;
@@ -64,13 +65,13 @@ pub mod progress;
 pub mod slam;
 
 pub use config::{
-    BackgroundSource, Config, FirstPass, FlowPreset, MotionConfig, OnlineConfig, PassConfig,
-    PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
+    BackgroundSource, Config, Cue, Cues, FirstPass, FlowPreset, MotionConfig, OnlineConfig,
+    PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
 pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
 pub use error::{Error, Result};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
-pub use maps::{MapFolder, MapJob, MapSet};
+pub use maps::{FrameMaps, MapFolder, MapJob, MapSet};
 pub use method::{Method, Mode, Terms};
 pub use offline::{OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};

@@ -16,12 +16,14 @@ use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
 use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
 use dynapix_motion::{
-    Backgrounds, BoxError, FrameLoader, FrameMotion, MotionParams, RgbdImages, SequenceMotion,
-    SequenceStats, StaticBackground,
+    Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
+    RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
 };
+use rayon::prelude::*;
 use serde_json::{Value, json};
 
-use crate::config::{Config, FlowPreset};
+use crate::config::{Config, Cues, FlowPreset};
+use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
@@ -30,8 +32,8 @@ use crate::progress::{Progress, Task};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
-/// through the lens distortion of distorted cameras).
-pub const MOTION_MAPS_VERSION: u32 = 2;
+/// through the lens distortion of distorted cameras; 3: cues combined by noisy-or).
+pub const MOTION_MAPS_VERSION: u32 = 3;
 
 /// The record file of a map folder.
 pub const RECORD_FILE: &str = "motion.json";
@@ -107,6 +109,27 @@ pub struct MapJob<'a> {
     pub max_pose_gap: f64,
     /// Extra facts about the poses (e.g. added noise), recorded with them.
     pub pose_notes: Value,
+    /// The cues that make up P.
+    pub cues: Cues,
+    /// Parameters of the geometric cue.
+    pub static_depth: StaticDepthParams,
+    /// Parameters of the rigidity cue.
+    pub rigidity_params: RigidityParams,
+    /// Precomputed rigidity maps of the sequence (made with `rigidity_params`); without them
+    /// the rigidity cue is computed frame by frame.
+    pub rigidity: Option<MapSet>,
+}
+
+/// What the per-frame consumer of [`MapJob::run`] gets.
+#[derive(Debug)]
+pub struct FrameMaps<'a> {
+    /// Frame index.
+    pub index: usize,
+    /// The motion probability of the frame: the enabled cues combined by noisy-or.
+    pub p: FloatImage,
+    /// The paper's terms of the frame (P = D·M, D, M, images, background), when that cue is
+    /// on.
+    pub paper: Option<FrameMotion<'a>>,
 }
 
 impl<'a> MapJob<'a> {
@@ -133,7 +156,23 @@ impl<'a> MapJob<'a> {
             use_depth_bg,
             max_pose_gap: config.motion.max_pose_gap,
             pose_notes: Value::Null,
+            cues: config.cues(),
+            static_depth: config.motion.static_depth.clone(),
+            rigidity_params: config.motion.rigidity.clone(),
+            rigidity: None,
         }
+    }
+
+    /// This job with the sequence's precomputed rigidity maps.
+    pub fn with_rigidity(mut self, maps: Option<MapSet>) -> Self {
+        self.rigidity = maps;
+        self
+    }
+
+    /// True when this job's maps use poses.
+    fn uses_poses(&self) -> bool {
+        (self.cues.paper && SequenceMotion::needs_poses(&self.params, &self.backgrounds))
+            || self.cues.geometric
     }
 
     /// True when the maps of `config` on `input` use poses.
@@ -143,7 +182,13 @@ impl<'a> MapJob<'a> {
             .frames
             .first()
             .is_some_and(|f| f.background.is_some());
-        SequenceMotion::needs_poses(&config.motion_params(), &config.backgrounds(has_folder))
+        let cues = config.cues();
+        (cues.paper
+            && SequenceMotion::needs_poses(
+                &config.motion_params(),
+                &config.backgrounds(has_folder),
+            ))
+            || cues.geometric
     }
 
     /// The flow provider.
@@ -182,6 +227,14 @@ impl<'a> MapJob<'a> {
             "camera": cam,
             "depth_factor": seq.depth_factor,
             "params": self.params,
+            "cues": {
+                "combine": "noisy-or: P = 1 - prod(1 - P_cue)",
+                "paper": self.cues.paper,
+                "geometric": self.cues.geometric.then_some(&self.static_depth),
+                "rigidity": self.cues.rigidity.then(|| {
+                    RigidityJob::new(self.input, self.rigidity_params.clone()).record()
+                }),
+            },
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
         })
     }
@@ -204,8 +257,8 @@ impl<'a> MapJob<'a> {
         let seq = &self.input.sequence;
         let cam = self.input.camera.pinhole();
         let size = (cam.width, cam.height);
-        let needs_poses = SequenceMotion::needs_poses(&self.params, &self.backgrounds);
-        let given = !self.backgrounds.reconstructs();
+        let needs_poses = self.uses_poses();
+        let given = self.cues.paper && !self.backgrounds.reconstructs();
         (0..seq.len())
             .into_par_iter()
             .flat_map_iter(|i| {
@@ -273,24 +326,98 @@ impl<'a> MapJob<'a> {
 
     /// Computes the maps of `frames`: `map` gets every frame's result (in parallel), its
     /// output goes to `fold` in frame order.
-    pub fn run<R, F, G>(&self, frames: &[usize], map: F, fold: G) -> Result<SequenceStats>
+    pub fn run<R, F, G>(&self, frames: &[usize], map: F, mut fold: G) -> Result<SequenceStats>
     where
         R: Send,
-        F: Fn(FrameMotion<'_>) -> std::result::Result<R, BoxError> + Sync,
+        F: Fn(FrameMaps<'_>) -> std::result::Result<R, BoxError> + Sync,
         G: FnMut(usize, R),
     {
-        let loader = SequenceLoader::new(self.input, self.use_depth_bg);
-        let flow = self.flow_provider();
-        let cam = self.input.camera.pinhole();
-        let seq = SequenceMotion {
-            loader: &loader,
-            poses: &self.poses.poses,
-            camera: &cam,
-            flow: &flow,
-            params: &self.params,
-            backgrounds: &self.backgrounds,
+        let started = std::time::Instant::now();
+        let geo = if self.cues.geometric {
+            Some(GeometricInput::load(
+                self.input,
+                self.poses,
+                &self.static_depth,
+            )?)
+        } else {
+            None
         };
-        Ok(seq.run(frames, map, fold)?)
+        let rig_job = RigidityJob::new(self.input, self.rigidity_params.clone());
+        let others = |i: usize, p: &mut FloatImage| -> std::result::Result<(), BoxError> {
+            if let Some(g) = &geo {
+                noisy_or(p, &g.frame(i)?)?;
+            }
+            if self.cues.rigidity {
+                let r = match &self.rigidity {
+                    Some(set) => {
+                        let path = set
+                            .folder
+                            .map_path(self.input, i)
+                            .ok_or("frame without a file name")?;
+                        dynapix_io::images::read_motion_probability(path)?.into_image()
+                    }
+                    None => rig_job.frame(i)?,
+                };
+                noisy_or(p, &r)?;
+            }
+            Ok(())
+        };
+        if self.cues.paper {
+            let loader = SequenceLoader::new(self.input, self.use_depth_bg);
+            let flow = self.flow_provider();
+            let cam = self.input.camera.pinhole();
+            let seq = SequenceMotion {
+                loader: &loader,
+                poses: &self.poses.poses,
+                camera: &cam,
+                flow: &flow,
+                params: &self.params,
+                backgrounds: &self.backgrounds,
+            };
+            let mut stats = seq.run(
+                frames,
+                |m| {
+                    let mut p = m.maps.p.clone();
+                    others(m.index, &mut p)?;
+                    map(FrameMaps {
+                        index: m.index,
+                        p,
+                        paper: Some(m),
+                    })
+                },
+                fold,
+            )?;
+            if self.cues.geometric || self.cues.rigidity {
+                stats.compute_seconds = started.elapsed().as_secs_f64();
+            }
+            return Ok(stats);
+        }
+        let cam = self.input.camera.pinhole();
+        let chunk = 4 * rayon::current_num_threads().max(1);
+        for part in frames.chunks(chunk) {
+            let out = part
+                .par_iter()
+                .map(|&i| {
+                    let mut p = FloatImage::new(cam.width, cam.height);
+                    others(i, &mut p)
+                        .and_then(|()| {
+                            map(FrameMaps {
+                                index: i,
+                                p,
+                                paper: None,
+                            })
+                        })
+                        .map_err(|e| Error::Input(format!("motion maps: frame {i}: {e}")))
+                })
+                .collect::<Result<Vec<R>>>()?;
+            for (&i, r) in part.iter().zip(out) {
+                fold(i, r);
+            }
+        }
+        Ok(SequenceStats {
+            frames: frames.len(),
+            compute_seconds: started.elapsed().as_secs_f64(),
+        })
     }
 }
 
@@ -348,7 +475,7 @@ impl MapFolder {
         let Some(Ok(rec)) = self.read_record() else {
             return false;
         };
-        rec.get("config") == Some(config)
+        rec.get("config") == Some(&as_read_back(config))
             && rec.get("status").and_then(Value::as_str) == Some("complete")
             && (0..input.len()).all(|i| self.map_path(input, i).is_some_and(|p| p.is_file()))
     }
@@ -361,6 +488,13 @@ impl MapFolder {
         write_motion_probability(path, p)?;
         Ok(())
     }
+}
+
+/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
+/// the last place away from the value that was written, so a record read from a file is
+/// compared with the expected record after the same round trip.
+pub fn as_read_back(v: &Value) -> Value {
+    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
 }
 
 /// Where the maps of a pass came from and what made them.
@@ -466,7 +600,7 @@ pub fn compute_into(
     let stats = job.run(
         &all,
         |m| {
-            folder.write_map(job.input, m.index, &MotionProbability::new(m.maps.p))?;
+            folder.write_map(job.input, m.index, &MotionProbability::new(m.p))?;
             Ok(())
         },
         |_, ()| task.step(""),

@@ -22,10 +22,11 @@ use dynapix_io::Trajectory;
 use serde_json::{Value, json};
 
 use crate::config::{Config, FirstPass, PoseSource};
+use crate::cues::{RigidityJob, cached_rigidity};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
-use crate::maps::{MapFolder, MapJob, MapSet, cached_maps};
+use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
 use crate::method::{Method, Terms};
 use crate::poses::{FramePoses, PoseOrigin, as_written};
 use crate::progress::Progress;
@@ -33,7 +34,7 @@ use crate::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pas
 
 /// Version of the SLAM passes, part of the first-pass cache key: bump it when a change of
 /// the SLAM system changes trajectories without changing a parameter.
-pub const SLAM_PASS_VERSION: u32 = 1;
+pub const SLAM_PASS_VERSION: u32 = 2;
 
 /// Options of a run that are about files, not about the method.
 #[derive(Clone, Debug, Default)]
@@ -174,16 +175,38 @@ impl<'a> OfflineRunner<'a> {
         )
     }
 
+    /// The sequence's rigidity maps (cached), when the run uses them: for the rigidity cue or
+    /// the rigidity first pass.
+    pub fn rigidity_maps(&self, progress: &dyn Progress) -> Result<Option<MapSet>> {
+        let c = self.config;
+        let wanted = c.method.terms().is_some()
+            && (c.cues().rigidity || c.passes.first == FirstPass::Rigidity);
+        if !wanted {
+            return Ok(None);
+        }
+        let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
+        cached_rigidity(&job, &self.cache_dir(), "rigidity maps", progress).map(Some)
+    }
+
     /// The cache key document of the first pass.
     fn first_pass_record(&self) -> Value {
         let c = self.config;
+        let (params, weights) = match c.passes.first {
+            FirstPass::Orbslam2 => (c.orbslam2_params(), Value::Null),
+            FirstPass::Rigidity => (
+                c.system_params(),
+                RigidityJob::new(self.input, c.motion.rigidity.clone()).record(),
+            ),
+        };
         json!({
             "kind": c.passes.first,
             "version": SLAM_PASS_VERSION,
             "frames_hash": self.input.frames_hash(),
             "frames": self.input.len(),
             "camera": self.input.camera.record(),
-            "params": c.orbslam2_params(),
+            "params": params,
+            "weights": weights,
+            "method": c.method.name(),
             "vocabulary": c.slam.vocabulary,
             "seed": c.slam.seed,
         })
@@ -198,7 +221,6 @@ impl<'a> OfflineRunner<'a> {
                 record: json!({"source": "given by the caller"}),
             });
         }
-        let FirstPass::Orbslam2 = self.config.passes.first;
         let doc = self.first_pass_record();
         let key = Fnv64::of(doc.to_string().as_bytes());
         let dir = self.cache_dir().join(format!("first-pass-{key}"));
@@ -207,7 +229,7 @@ impl<'a> OfflineRunner<'a> {
         let recorded = std::fs::read_to_string(&rec_path)
             .ok()
             .and_then(|t| serde_json::from_str::<Value>(&t).ok());
-        if recorded.as_ref().and_then(|r| r.get("config")) == Some(&doc)
+        if recorded.as_ref().and_then(|r| r.get("config")) == Some(&as_read_back(&doc))
             && let Ok(trajectory) = Trajectory::read_tum(&traj_path)
         {
             return Ok(FirstPassResult {
@@ -216,13 +238,31 @@ impl<'a> OfflineRunner<'a> {
                 record: json!({"source": "cache (key matched)", "dir": dir, "key": key}),
             });
         }
-        let out = self.pass(
-            Method::Orbslam2,
-            None,
-            self.config.slam.seed,
-            "first pass (orbslam2)",
-            progress,
-        )?;
+        let out = match self.config.passes.first {
+            FirstPass::Orbslam2 => self.pass(
+                Method::Orbslam2,
+                None,
+                self.config.slam.seed,
+                "first pass (orbslam2)",
+                progress,
+            )?,
+            FirstPass::Rigidity => {
+                let rigidity = self
+                    .rigidity_maps(progress)?
+                    .ok_or_else(|| Error::Input("the rigidity first pass needs maps".into()))?;
+                let method = match self.config.method {
+                    Method::Orbslam2 => Method::Dynapix,
+                    m => m,
+                };
+                self.pass(
+                    method,
+                    Some(&rigidity),
+                    self.config.slam.seed,
+                    "first pass (rigidity)",
+                    progress,
+                )?
+            }
+        };
         std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
         out.trajectory.write_tum(&traj_path)?;
         let rec = json!({"config": doc, "status": "complete", "stats": out.stats});
@@ -274,7 +314,12 @@ impl<'a> OfflineRunner<'a> {
     /// The maps of weighted pass `k` (1-based) with `poses`: the sequence's own `prob/` for
     /// the first pass when allowed, else from the cache or computed.
     fn maps_for(&self, k: usize, poses: &FramePoses, progress: &dyn Progress) -> Result<MapSet> {
-        let job = MapJob::new(self.input, self.config, poses);
+        let rigidity = if self.config.cues().rigidity {
+            self.rigidity_maps(progress)?
+        } else {
+            None
+        };
+        let job = MapJob::new(self.input, self.config, poses).with_rigidity(rigidity);
         let label = format!("motion maps (pass {k})");
         cached_maps(&job, &self.cache_dir(), &label, progress)
     }
@@ -396,6 +441,9 @@ impl<'a> OfflineRunner<'a> {
             "sequence": self.input.record(),
             "method": c.method.name(),
             "mode": c.mode.name(),
+            "cues": c.method.terms().map(|_| c.cues().name()),
+            "first_pass_kind": c.method.terms().map(|_| c.passes.first.name()),
+            "weighted_passes": c.method.terms().map(|_| c.passes.weighted),
             "oracle_poses": c.motion.poses == PoseSource::GroundTruth,
             "ground_truth_used_at_run_time": false,
             "loop_closing": p.loop_closing.enabled,

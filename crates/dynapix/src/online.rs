@@ -16,8 +16,13 @@
 //!   backgrounds reconstructed for them from predicted poses) cost a background per frame of
 //!   lookahead and measured no better on the synth walking presets (walking_xyz with one
 //!   frame of lookahead: 0.055 m against 0.032 m as background sources);
-//! - P = D·M becomes static weights (quantised like the map files) and the SLAM system tracks
-//!   m with them.
+//! - the **rigidity cue** uses the neighbours of `motion.rigidity.offsets` that the system has
+//!   seen: past frames of the window and frames waiting in the lookahead (no poses needed);
+//! - the **geometric cue** takes the static depth from the depths of the window, the kept
+//!   keyframes and the waiting frames, splatted with the poses the running system gave them;
+//! - the enabled cues ([`crate::Cues`]; the paper's terms P = D·M only when that cue is on)
+//!   combine by noisy-or into static weights (quantised like the map files) and the SLAM
+//!   system tracks m with them.
 //!
 //! Memory is bounded by the window (`online.window` frames with their backgrounds, plus
 //! `online.background_keyframes` keyframe images and the `lookahead` frames waiting), not by
@@ -30,15 +35,17 @@ use std::time::Instant;
 use dynapix_flow::dis::DisFlow;
 use dynapix_geometry::{PinholeCamera, Se3};
 use dynapix_io::{DepthImage, FrameStatus, MotionProbability, StaticWeights};
+use dynapix_motion::moving::to_gray;
+use dynapix_motion::static_depth::{DepthView, WorkingDepth, geometric_term, static_depth};
 use dynapix_motion::{
-    FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, Source, StaticBackground,
-    motion_probability, reconstruct_background,
+    FloatImage, FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, RigidFrame,
+    Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
 };
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System};
 use image::{GrayImage, RgbImage};
 
-use crate::config::Config;
+use crate::config::{Config, Cues};
 use crate::error::{Error, Result};
 use crate::input::Camera;
 use crate::slam::{frame_status, load_vocabulary};
@@ -98,6 +105,10 @@ pub struct FrameResult {
 struct Past {
     index: usize,
     images: Arc<RgbdImages>,
+    /// Grey image (rigidity cue).
+    gray: Option<Arc<GrayImage>>,
+    /// Depth at the working resolution of the geometric cue.
+    working: Option<Arc<WorkingDepth>>,
     background: Option<Arc<StaticBackground>>,
     /// Camera-to-world pose: tracked, or the prediction when tracking failed.
     pose_wc: Se3,
@@ -112,6 +123,9 @@ pub struct OnlineDynaPix {
     cam: PinholeCamera,
     system: System<OrbExtractor>,
     flow: DisFlow,
+    rigidity_flow: DisFlow,
+    /// The cues of P (`None` for ORB-SLAM2).
+    cues: Option<Cues>,
     params: Option<MotionParams>,
     recon: ReconstructParams,
     pending: VecDeque<(usize, RgbdFrame)>,
@@ -130,7 +144,8 @@ impl OnlineDynaPix {
         if config.method.needs_masks() {
             tracing::debug!("dynapix+ online: masks come with the frames");
         }
-        let params = config.method.terms().map(|_| {
+        let cues = config.method.terms().map(|_| config.cues());
+        let params = cues.filter(|c| c.paper).map(|_| {
             let mut p = config.motion_params();
             p.offsets = config.online.past_offsets.clone();
             p
@@ -146,6 +161,8 @@ impl OnlineDynaPix {
             cam: camera.pinhole(),
             system,
             flow: DisFlow::with_preset(config.motion.flow.preset()),
+            rigidity_flow: DisFlow::with_preset(config.motion.rigidity.flow_preset),
+            cues,
             params,
             recon: config.motion.reconstruct.clone(),
             pending: VecDeque::new(),
@@ -290,12 +307,40 @@ impl OnlineDynaPix {
             depth: frame.depth,
         });
         let mut background_ms = 0.0;
-        let (weights, background, mean_probability) = match &self.params {
+        let cues = self.cues.unwrap_or(Cues {
+            paper: false,
+            geometric: false,
+            rigidity: false,
+        });
+        let gray = cues.rigidity.then(|| Arc::new(to_gray(&images.rgb)));
+        let working = cues.geometric.then(|| {
+            Arc::new(WorkingDepth::new(
+                &images.depth,
+                &self.config.motion.static_depth,
+            ))
+        });
+        let (weights, background, mean_probability) = match self.cues {
             None => (None, None, 0.0),
-            Some(params) => {
-                let bg = Arc::new(self.background(index, &images, &t_wc)?);
-                background_ms = t0.elapsed().as_secs_f64() * 1e3;
-                let p = self.motion(index, &images, &bg, &t_wc, params)?;
+            Some(cues) => {
+                let mut p = FloatImage::new(self.cam.width, self.cam.height);
+                let mut background = None;
+                if let Some(params) = &self.params {
+                    let bg = Arc::new(self.background(index, &images, &t_wc)?);
+                    background_ms = t0.elapsed().as_secs_f64() * 1e3;
+                    let paper = self.motion(index, &images, &bg, &t_wc, params)?;
+                    noisy_or(&mut p, paper.as_image())?;
+                    background = Some(bg);
+                }
+                if let Some(g) = &gray {
+                    noisy_or(&mut p, &self.rigidity(index, g, &images.depth)?)?;
+                }
+                if cues.geometric
+                    && let Some(w) = &working
+                {
+                    noisy_or(&mut p, &self.geometric(index, w, &t_wc)?)?;
+                }
+                let p = MotionProbability::new(p);
+                let bg = background;
                 let mean = p.as_image().iter().sum::<f32>() / p.as_image().len().max(1) as f32;
                 let w = p.static_weights();
                 let w = if self.config.method.thresholds() {
@@ -303,7 +348,7 @@ impl OnlineDynaPix {
                 } else {
                     w
                 };
-                (Some(w), Some(bg), mean)
+                (Some(w), bg, mean)
             }
         };
         let motion_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -328,6 +373,8 @@ impl OnlineDynaPix {
         self.remember(Past {
             index,
             images,
+            gray,
+            working,
             background,
             pose_wc: pose_wc.unwrap_or(t_wc),
             keyframe: res.new_keyframe && pose_wc.is_some(),
@@ -372,8 +419,9 @@ impl OnlineDynaPix {
             if let Some(mut old) = self.window.pop_front()
                 && old.keyframe
             {
-                // Only the images are needed as a background source.
+                // Only the images (and the working depth) are needed as a source.
                 old.background = None;
+                old.gray = None;
                 self.keyframes.push_back(old);
             }
         }
@@ -382,15 +430,112 @@ impl OnlineDynaPix {
         }
     }
 
-    /// The farthest past neighbour offset.
+    /// The farthest past neighbour offset (moving term and rigidity cue).
     fn past_reach(&self) -> usize {
+        let rigidity = self
+            .cues
+            .is_some_and(|c| c.rigidity)
+            .then_some(&self.config.motion.rigidity.offsets);
         self.config
             .online
             .past_offsets
             .iter()
+            .chain(rigidity.into_iter().flatten().filter(|&&o| o < 0))
             .map(|o| o.unsigned_abs() as usize)
             .max()
             .unwrap_or(0)
+    }
+
+    /// The rigidity cue of frame `index` against the neighbours of `motion.rigidity.offsets`
+    /// it has seen: past frames of the window, frames waiting in the lookahead.
+    fn rigidity(&self, index: usize, gray: &GrayImage, depth: &FloatImage) -> Result<FloatImage> {
+        let mut owned: Vec<(i64, Arc<GrayImage>, Arc<RgbdImages>)> = Vec::new();
+        let mut waiting: Vec<(i64, GrayImage, &DepthImage)> = Vec::new();
+        for &o in &self.config.motion.rigidity.offsets {
+            let Some(j) = index.checked_add_signed(o as isize) else {
+                continue;
+            };
+            if o < 0 {
+                if let Some(p) = self.window.iter().find(|p| p.index == j)
+                    && let Some(g) = &p.gray
+                {
+                    owned.push((o, g.clone(), p.images.clone()));
+                }
+            } else if let Some((_, f)) = self.pending.iter().find(|(k, _)| *k == j) {
+                waiting.push((o, to_gray(&f.rgb), &f.depth));
+            }
+        }
+        let mut nbs: Vec<RigidFrame<'_>> = owned
+            .iter()
+            .map(|(o, g, img)| RigidFrame {
+                gray: g,
+                depth: &img.depth,
+                offset: *o,
+            })
+            .collect();
+        nbs.extend(waiting.iter().map(|(o, g, d)| RigidFrame {
+            gray: g,
+            depth: d,
+            offset: *o,
+        }));
+        if nbs.is_empty() {
+            return Ok(FloatImage::new(self.cam.width, self.cam.height));
+        }
+        let me = RigidFrame {
+            gray,
+            depth,
+            offset: 0,
+        };
+        let maps = dynapix_motion::rigidity_probability_with(
+            &me,
+            &nbs,
+            &self.cam,
+            &self.rigidity_flow,
+            &self.config.motion.rigidity,
+        )?;
+        Ok(maps.p)
+    }
+
+    /// The geometric cue of frame `index` (working depth `cur`, predicted pose `t_wc`): the
+    /// static depth from the depths of the window, the kept keyframes and the waiting frames
+    /// within `static_depth.window_s` seconds (at most `max_views`, newest first).
+    fn geometric(&self, index: usize, cur: &WorkingDepth, t_wc: &Se3) -> Result<FloatImage> {
+        let params = &self.config.motion.static_depth;
+        let t_cw = t_wc.inverse();
+        let mut waiting: Vec<(WorkingDepth, Se3)> = Vec::new();
+        for (j, f) in self.pending.iter().take(self.lookahead()) {
+            if *j != index {
+                waiting.push((
+                    WorkingDepth::new(&f.depth, params),
+                    self.predict_cw(*j).inverse(),
+                ));
+            }
+        }
+        let mut views: Vec<DepthView<'_>> = waiting
+            .iter()
+            .map(|(d, pose)| DepthView {
+                depth: d,
+                t_cs: t_cw * pose,
+            })
+            .collect();
+        let newest_window = self.window.front().map_or(usize::MAX, |p| p.index);
+        let kept = self.keyframes.iter().filter(|k| k.index < newest_window);
+        for p in self.window.iter().rev().chain(kept.rev()) {
+            if views.len() >= params.max_views {
+                break;
+            }
+            if let Some(w) = &p.working {
+                views.push(DepthView {
+                    depth: w,
+                    t_cs: t_cw * p.pose_wc,
+                });
+            }
+        }
+        if views.is_empty() {
+            return Ok(FloatImage::new(self.cam.width, self.cam.height));
+        }
+        let sd = static_depth(&self.cam, &views, params)?;
+        Ok(geometric_term(cur, &sd, params)?)
     }
 
     /// P of frame `index` from its background and neighbours.

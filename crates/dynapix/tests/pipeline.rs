@@ -139,14 +139,15 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
         again.final_pass().unwrap().trajectory,
         first.final_pass().unwrap().trajectory
     );
-    let dir1 = again.final_maps().unwrap().folder.dir.clone();
+    // The maps of the first weighted pass (what `record["prob"]` describes).
+    let dir1 = again.maps[0].folder.dir.clone();
     // A motion parameter changes: other key, maps recomputed.
     let mut changed = config.clone();
     changed.motion.params.movable.clip_hi += 5.0;
     let c = offline(&changed, &input, &cache);
     assert_eq!(c.record["prob"]["source"], "computed");
     assert_eq!(c.record["first_pass"]["source"], "cache (key matched)");
-    assert_ne!(c.final_maps().unwrap().folder.dir, dir1);
+    assert_ne!(c.maps[0].folder.dir, dir1);
     // Another first pass (SLAM parameters changed) is run, not taken from the cache.
     let mut slam = config.clone();
     slam.slam.params.tracking.motion_th = 14.0;

@@ -253,14 +253,14 @@ pub fn evaluate(
     seq_dir: &Path,
     traj: &Path,
     stamps: &[f64],
-) -> anyhow::Result<Option<dynapix_eval::RunResult>> {
+) -> anyhow::Result<Option<dynapix_eval::files::RunEvaluation>> {
     let gt_path = seq_dir.join("groundtruth.txt");
     if !gt_path.exists() {
         return Ok(None);
     }
     let gt = dynapix_eval::files::read_camera_ground_truth(&gt_path)?;
     let params = dynapix_eval::EvalParams::default();
-    Ok(Some(dynapix_eval::files::evaluate_run_file(
+    Ok(Some(dynapix_eval::files::evaluate_run(
         &gt,
         traj,
         Some(stamps),

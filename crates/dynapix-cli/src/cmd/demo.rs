@@ -133,11 +133,17 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             let out = args.out.join("runs").join(preset).join(method.name());
             let mut config = base.clone().with_method(method);
             config.motion.flow = args.flow_preset;
+            // As a camera's data: the rendered background/ folder is never used.
+            config.motion.background = dynapix::BackgroundSource::Reconstruct;
             if args.oracle_poses {
                 config.motion.poses = PoseSource::GroundTruth;
             }
             let options = RunOptions {
-                first_pass: if args.oracle_poses {
+                // The ORB-SLAM2 run serves as the first pass only when the configuration's
+                // first pass is ORB-SLAM2 (reference mode).
+                first_pass: if args.oracle_poses
+                    || config.passes.first != dynapix::FirstPass::Orbslam2
+                {
                     None
                 } else {
                     first_pass.clone()
@@ -161,7 +167,11 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             }
             let r = evaluate(&seq, &o.trajectory, &stamps)?;
             let rr = r.with_context(|| format!("{preset}: no ground truth"))?;
-            methods.push(dynapix_eval::aggregate::summarize(method.name(), vec![rr]));
+            methods.push(dynapix_eval::aggregate::summarize_with_floors(
+                method.name(),
+                vec![rr.result],
+                vec![rr.motionless_floor_m],
+            ));
             if method == Method::Dynapix
                 && let Some(pd) = &o.prob_dir
             {
@@ -223,7 +233,8 @@ Total time: {secs:.0} s.\n",
         if args.oracle_poses {
             "poses for the motion maps (oracle)"
         } else {
-            "none (motion maps from DynaPix's own ORB-SLAM2 first pass)"
+            "none (motion maps from DynaPix's own passes; background reconstructed, the rendered \
+             background/ folder is not used)"
         }
     );
     dynapix_io::write_atomic(args.out.join("report.md"), report.as_bytes())?;

@@ -69,6 +69,10 @@ pub struct Args {
     /// DIS preset.
     #[arg(long, value_enum)]
     pub flow_preset: Option<FlowPreset>,
+    /// The cues of P, comma separated, combined by noisy-or (paper mode:
+    /// paper,geometric,rigidity; reference: paper).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub cues: Option<Vec<dynapix::Cue>>,
     /// Background reconstruction: largest frame offset.
     #[arg(long)]
     pub bg_radius: Option<usize>,
@@ -136,6 +140,10 @@ fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
         }
         p.offsets = o.clone();
     }
+    if let Some(list) = &args.cues {
+        c.motion.cues = dynapix::Cues::only(list);
+    }
+    let p = &mut c.motion.params;
     p.use_movable &= !args.no_movable;
     p.use_moving &= !args.no_moving;
     if let Some(r) = args.refine_rotation {
@@ -173,9 +181,6 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let input = args.seq.open(&config)?;
     let seq = &input.sequence;
     let n = input.len();
-    if input.camera.pinhole().is_distorted() {
-        tracing::warn!("the camera has distortion; splatting uses the ideal pinhole model");
-    }
     let noise = match &args.pose_noise {
         None => None,
         Some(v) if v.len() == 2 && v.iter().all(|x| *x >= 0.0) => Some((v[0], v[1])),
@@ -253,10 +258,13 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         );
         traj.write_tum(path)?;
     }
+    let rigidity =
+        OfflineRunner::new(&config, &input, RunOptions::default())?.rigidity_maps(bars)?;
     let job = MapJob {
         pose_notes: notes,
         ..MapJob::new(&input, &config, &poses)
-    };
+    }
+    .with_rigidity(rigidity);
 
     // Configuration record; a resumed run must use the same one.
     let folder = MapFolder::new(seq.prob_dir.clone());
@@ -265,7 +273,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         && !args.force
     {
         let old = old?;
-        if old.get("config") != Some(&record) {
+        if old.get("config") != Some(&dynapix::maps::as_read_back(&record)) {
             bail!(
                 "{} was written with other settings; use --force to recompute all frames",
                 folder.dir.join(dynapix::maps::RECORD_FILE).display()
@@ -308,7 +316,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         |m| -> Result<(RocAccumulator, [f64; 6]), dynapix_motion::BoxError> {
             let i = m.index;
             let name = input.map_name(i).ok_or("no file name")?;
-            let p = MotionProbability::new(m.maps.p);
+            let p = MotionProbability::new(m.p);
             folder.write_map(&input, i, &p)?;
             if args.float_maps {
                 dynapix_io::images::write_prob_pfm(
@@ -317,13 +325,17 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 )?;
             }
             if args.pictures {
-                dynapix_io::images::write_rgb(
-                    vis_dir.join(&name),
-                    &overlay(&m.images.rgb, p.as_image()),
-                )?;
+                let rgb = match &m.paper {
+                    Some(paper) => paper.images.rgb.clone(),
+                    None => input.load_rgbd(i)?.0,
+                };
+                dynapix_io::images::write_rgb(vis_dir.join(&name), &overlay(&rgb, p.as_image()))?;
             }
-            if args.save_background && reconstructs {
-                dynapix_io::images::write_rgb(bgrec_dir.join(&name), &m.background.rgb)?;
+            if args.save_background
+                && reconstructs
+                && let Some(paper) = &m.paper
+            {
+                dynapix_io::images::write_rgb(bgrec_dir.join(&name), &paper.background.rgb)?;
             }
             let mut acc = RocAccumulator::new(0.5);
             let mut ps = [0.0f64; 6];
@@ -333,7 +345,10 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 let mask = dynapix_io::images::read_mask(mask_path)?;
                 let pos: Vec<bool> = mask.iter().map(|&v| v == 255).collect();
                 acc.add(p.as_image().as_raw(), &pos);
-                if reconstructs && let Some(bg) = &f.background {
+                if reconstructs
+                    && let Some(bg) = &f.background
+                    && let Some(paper) = &m.paper
+                {
                     let truth = dynapix_io::images::read_rgb(bg)?;
                     for (slot, sel) in [(0usize, 1u8), (3, 255)] {
                         let movers: Vec<bool> = mask.iter().map(|&v| v >= sel).collect();
@@ -344,8 +359,8 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                                 .unwrap_or(0.0)
                         };
                         if k > 0.0 {
-                            ps[slot] = mse(&m.background.rgb) * k;
-                            ps[slot + 1] = mse(&m.images.rgb) * k;
+                            ps[slot] = mse(&paper.background.rgb) * k;
+                            ps[slot + 1] = mse(&paper.images.rgb) * k;
                             ps[slot + 2] = k;
                         }
                     }

@@ -20,7 +20,10 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use dynapix::offline::{OfflineRunner, RunOptions};
-use dynapix::{Config, FlowPreset, Input, Method, Mode, OnlineDynaPix, PoseSource, RgbdFrame};
+use dynapix::{
+    Config, Cue, Cues, FirstPass, FlowPreset, Input, Method, Mode, OnlineDynaPix, PoseSource,
+    RgbdFrame,
+};
 use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::dynapix::ProbUpdate;
 use serde_json::{Value, json};
@@ -62,9 +65,17 @@ pub struct MethodArgs {
     /// DIS preset of the motion maps (fast).
     #[arg(long, value_enum)]
     pub flow_preset: Option<FlowPreset>,
-    /// Weighted passes; the maps of pass k + 1 use the trajectory of pass k (1).
+    /// Weighted passes; the maps of pass k + 1 use the trajectory of pass k (paper mode 2,
+    /// reference 1).
     #[arg(long)]
     pub passes: Option<usize>,
+    /// The cues of P, comma separated, combined by noisy-or (paper mode:
+    /// paper,geometric,rigidity; reference: paper).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub cues: Option<Vec<Cue>>,
+    /// The pass whose poses make the first maps (paper mode: rigidity; reference: orbslam2).
+    #[arg(long, value_enum)]
+    pub first_pass: Option<FirstPass>,
     /// Turn loop closing off (ORB-SLAM2's loop closer runs by default).
     #[arg(long)]
     pub no_loop_closing: bool,
@@ -98,6 +109,12 @@ impl MethodArgs {
         }
         if let Some(p) = self.passes {
             c.passes.weighted = p;
+        }
+        if let Some(list) = &self.cues {
+            c.motion.cues = Cues::only(list);
+        }
+        if let Some(f) = self.first_pass {
+            c.passes.first = f;
         }
         if self.no_loop_closing {
             c.slam.params.loop_closing.enabled = false;
@@ -165,6 +182,10 @@ pub struct RunOutcome {
     pub prob_dir: Option<PathBuf>,
     /// The final pass's trajectory as written (a first pass for a later DynaPix run).
     pub written_trajectory: Option<Trajectory>,
+    /// The motionless floor (ATE of a camera that never moves on the same pairs).
+    pub floor: Option<f64>,
+    /// Evaluations of the passes before the final one (first pass, weighted pass 1, …).
+    pub earlier_passes: Vec<Value>,
 }
 
 /// One run to execute: a configuration on an opened sequence.
@@ -189,24 +210,56 @@ fn evaluate_into(
     input: &Input,
     dir: &Path,
     stats: &mut Value,
-) -> anyhow::Result<Option<dynapix_eval::RunResult>> {
+    with_plots: bool,
+) -> anyhow::Result<Option<dynapix_eval::files::RunEvaluation>> {
     let seq_dir = &input.sequence.dir;
     let traj = dir.join("trajectory.txt");
     let ev = evaluate(seq_dir, &traj, &input.timestamps())?;
-    if ev.as_ref().is_some_and(|r| r.ate_rmse_m.is_some())
+    if with_plots
+        && ev.as_ref().is_some_and(|r| r.result.ate_rmse_m.is_some())
         && let Err(e) = plots(seq_dir, &traj, dir)
     {
         tracing::warn!("plots of {}: {e:#}", dir.display());
     }
     if let Some(r) = &ev {
-        stats["ate_rmse_m"] = json!(r.ate_rmse_m);
-        stats["tracking_rate"] = json!(r.tracking_rate);
-        if let Some(e) = &r.error {
+        stats["ate_rmse_m"] = json!(r.result.ate_rmse_m);
+        stats["tracking_rate"] = json!(r.result.tracking_rate);
+        stats["motionless_floor_m"] = json!(r.motionless_floor_m);
+        if let Some(e) = &r.result.error {
             stats["eval_error"] = json!(e);
         }
         write_json(&dir.join("eval.json"), &serde_json::to_value(r)?)?;
     }
     Ok(ev)
+}
+
+/// Writes the trajectories of the passes before the final one (`passes/first`,
+/// `passes/pass_K`) and evaluates them: how the alternation of SLAM and motion converges.
+fn write_earlier_passes(
+    input: &Input,
+    out: &Path,
+    run: &dynapix::OfflineOutput,
+) -> anyhow::Result<Vec<Value>> {
+    let mut dirs: Vec<(String, PathBuf)> = Vec::new();
+    if let Some(f) = &run.first_pass {
+        let d = out.join("passes").join("first");
+        std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
+        f.trajectory.write_tum(d.join("trajectory.txt"))?;
+        dirs.push(("first".into(), d));
+    }
+    let n = run.passes.len();
+    for (j, p) in run.passes.iter().enumerate().take(n.saturating_sub(1)) {
+        let d = out.join("passes").join(format!("pass_{}", j + 1));
+        write_pass(&d, p)?;
+        dirs.push((format!("{}", j + 1), d));
+    }
+    let mut rows = Vec::new();
+    for (name, d) in dirs {
+        let mut stats = json!({"pass": name, "dir": d});
+        evaluate_into(input, &d, &mut stats, false)?;
+        rows.push(stats);
+    }
+    Ok(rows)
 }
 
 /// Runs `spec` offline and writes its outputs.
@@ -223,6 +276,8 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         tracking_rate: Vec::new(),
         prob_dir: None,
         written_trajectory: None,
+        floor: None,
+        earlier_passes: Vec::new(),
     };
     let mut record = Value::Null;
     let mut runs = Vec::new();
@@ -243,13 +298,21 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             outcome.prob_dir = out.final_maps().map(|m| m.folder.dir.clone());
             outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
             record = out.record.clone();
+            let earlier = write_earlier_passes(spec.input, &spec.out, &out)?;
+            if !earlier.is_empty() {
+                record["earlier_passes"] = json!(earlier);
+            }
+            outcome.earlier_passes = earlier;
         }
         let mut stats = serde_json::to_value(pass.stats)?;
-        let ev = evaluate_into(spec.input, &dir, &mut stats)?;
-        outcome.ate.push(ev.as_ref().and_then(|r| r.ate_rmse_m));
+        let ev = evaluate_into(spec.input, &dir, &mut stats, true)?;
+        outcome
+            .ate
+            .push(ev.as_ref().and_then(|r| r.result.ate_rmse_m));
         outcome
             .tracking_rate
-            .push(ev.as_ref().and_then(|r| r.tracking_rate));
+            .push(ev.as_ref().and_then(|r| r.result.tracking_rate));
+        outcome.floor = ev.as_ref().and_then(|r| r.motionless_floor_m);
         runs.push(stats);
     }
     record["runs"] = json!(spec.runs);
@@ -358,7 +421,7 @@ pub fn execute_online(
         "image_loading_ms_mean": load_ms / n.max(1) as f64,
         "wall_seconds": wall,
     });
-    let ev = evaluate_into(input, out, &mut stats)?;
+    let ev = evaluate_into(input, out, &mut stats, true)?;
     let record = json!({
         "sequence": input.record(),
         "method": config.method.name(),
@@ -375,8 +438,10 @@ pub fn execute_online(
     write_json(&out.join("run.json"), &record)?;
     Ok(RunOutcome {
         trajectory: out.join("trajectory.txt"),
-        ate: vec![ev.as_ref().and_then(|r| r.ate_rmse_m)],
-        tracking_rate: vec![ev.as_ref().and_then(|r| r.tracking_rate)],
+        ate: vec![ev.as_ref().and_then(|r| r.result.ate_rmse_m)],
+        tracking_rate: vec![ev.as_ref().and_then(|r| r.result.tracking_rate)],
+        floor: ev.as_ref().and_then(|r| r.motionless_floor_m),
+        earlier_passes: Vec::new(),
         prob_dir: None,
         written_trajectory: None,
     })
@@ -428,10 +493,25 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             bars,
         )?
     };
+    let ate = |a: Option<f64>| a.map_or_else(|| "n/a".to_string(), |a| format!("{a:.4} m"));
+    for p in &o.earlier_passes {
+        println!(
+            "  pass {}: ATE RMSE {}, tracking rate {}",
+            p["pass"].as_str().unwrap_or("?"),
+            ate(p["ate_rmse_m"].as_f64()),
+            p["tracking_rate"]
+                .as_f64()
+                .map_or_else(|| "n/a".to_string(), |t| format!("{:.1} %", t * 100.0))
+        );
+    }
+    let floor = o
+        .floor
+        .map(|f| format!(" (motionless floor {f:.4} m)"))
+        .unwrap_or_default();
     for (k, (a, t)) in o.ate.iter().zip(&o.tracking_rate).enumerate() {
         match (a, t) {
             (Some(a), Some(t)) => println!(
-                "{method} run {k}: ATE RMSE {a:.4} m, tracking rate {:.1} %",
+                "{method} run {k}: ATE RMSE {a:.4} m, tracking rate {:.1} %{floor}",
                 t * 100.0
             ),
             _ => println!("{method} run {k}: no ATE (no ground truth or no overlap)"),

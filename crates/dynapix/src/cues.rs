@@ -1,0 +1,315 @@
+//! The cues beyond the paper's terms on a sequence (see [`crate::Cues`]):
+//!
+//! - the **rigidity cue** needs no poses, so its maps are computed once per sequence and
+//!   cached ([`RigidityJob`], [`cached_rigidity`]); they weight the rigidity first pass and
+//!   enter every later pass's P;
+//! - the **geometric cue** needs the depth of every frame at a working resolution and the
+//!   poses of the pass before ([`GeometricInput`]).
+//!
+//! Maps are stored like motion maps (16-bit PNG of `trunc((1 − P)·1000)` named like the rgb
+//! image, with a `motion.json` record), so a folder of rigidity maps is a valid map folder.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use dynapix_flow::dis::DisFlow;
+use dynapix_geometry::{PinholeCamera, Se3};
+use dynapix_io::MotionProbability;
+use dynapix_motion::moving::to_gray;
+use dynapix_motion::static_depth::{WorkingDepth, geometric_frame};
+use dynapix_motion::{FloatImage, RigidFrame, RigidityParams, StaticDepthParams};
+use image::GrayImage;
+use rayon::prelude::*;
+use serde_json::{Value, json};
+
+use crate::error::{Error, Result};
+use crate::hash::Fnv64;
+use crate::input::Input;
+use crate::maps::{MapFolder, MapSet};
+use crate::poses::FramePoses;
+use crate::progress::{Progress, Task};
+
+/// Version of the rigidity computation, part of its cache key.
+pub const RIGIDITY_MAPS_VERSION: u32 = 1;
+
+/// Everything that determines the rigidity maps of a sequence.
+pub struct RigidityJob<'a> {
+    /// The sequence.
+    pub input: &'a Input,
+    /// The cue's parameters (offsets, flow preset, noise model, RANSAC).
+    pub params: RigidityParams,
+}
+
+/// Counters of the rigidity fits of a run: pairs (frame, neighbour) by outcome.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RigidityStats {
+    /// Pairs whose dominant motion was fitted and used.
+    pub pairs_used: usize,
+    /// Pairs whose best motion explained too few correspondences (movers may dominate).
+    pub pairs_ambiguous: usize,
+    /// Pairs without a fit (too few correspondences, degenerate).
+    pub pairs_failed: usize,
+}
+
+impl RigidityStats {
+    fn add(&mut self, o: RigidityStats) {
+        self.pairs_used += o.pairs_used;
+        self.pairs_ambiguous += o.pairs_ambiguous;
+        self.pairs_failed += o.pairs_failed;
+    }
+}
+
+/// The grey image and depth of one frame.
+type GrayDepth = Arc<(GrayImage, FloatImage)>;
+
+impl<'a> RigidityJob<'a> {
+    /// The job of `params` on `input`.
+    pub fn new(input: &'a Input, params: RigidityParams) -> Self {
+        Self { input, params }
+    }
+
+    /// The `config` document of the maps' `motion.json`: everything that determines them.
+    pub fn record(&self) -> Value {
+        let seq = &self.input.sequence;
+        json!({
+            "cue": "rigidity",
+            "version": RIGIDITY_MAPS_VERSION,
+            "frames": seq.len(),
+            "frame_list": seq.frame_list,
+            "frames_hash": self.input.frames_hash(),
+            "camera": self.input.camera.pinhole(),
+            "depth_factor": seq.depth_factor,
+            "poses": "none (pose-free cue)",
+            "params": self.params,
+            "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
+        })
+    }
+
+    /// The cache key: a hash of [`RigidityJob::record`].
+    pub fn key(&self) -> String {
+        Fnv64::of(self.record().to_string().as_bytes())
+    }
+
+    fn load(&self, i: usize) -> Result<GrayDepth> {
+        let (rgb, depth) = self.input.load_rgbd(i)?;
+        Ok(Arc::new((to_gray(&rgb), depth)))
+    }
+
+    /// The neighbours of frame `i` that exist.
+    fn neighbours(&self, i: usize) -> Vec<(i64, usize)> {
+        let n = self.input.len() as i64;
+        self.params
+            .offsets
+            .iter()
+            .filter_map(|&o| {
+                let j = i as i64 + o;
+                (0..n).contains(&j).then_some((o, j as usize))
+            })
+            .collect()
+    }
+
+    /// P of frame `i` with the frames in `loaded` (which must hold `i` and its neighbours).
+    fn frame_with(
+        &self,
+        i: usize,
+        loaded: &HashMap<usize, GrayDepth>,
+        cam: &PinholeCamera,
+        flow: &DisFlow,
+    ) -> Result<(FloatImage, RigidityStats)> {
+        let get = |k: usize| {
+            loaded
+                .get(&k)
+                .ok_or_else(|| Error::Input(format!("rigidity: frame {k} not loaded")))
+        };
+        let cur = get(i)?;
+        let nbs: Vec<(i64, GrayDepth)> = self
+            .neighbours(i)
+            .into_iter()
+            .map(|(o, j)| Ok((o, get(j)?.clone())))
+            .collect::<Result<_>>()?;
+        let frames: Vec<RigidFrame<'_>> = nbs
+            .iter()
+            .map(|(o, g)| RigidFrame {
+                gray: &g.0,
+                depth: &g.1,
+                offset: *o,
+            })
+            .collect();
+        let me = RigidFrame {
+            gray: &cur.0,
+            depth: &cur.1,
+            offset: 0,
+        };
+        let maps = dynapix_motion::rigidity_probability_with(&me, &frames, cam, flow, &self.params)
+            .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
+        let mut stats = RigidityStats::default();
+        for f in &maps.fits {
+            match f {
+                Ok(_) => stats.pairs_used += 1,
+                Err(dynapix_motion::RigidFitError::Ambiguous { .. }) => stats.pairs_ambiguous += 1,
+                Err(_) => stats.pairs_failed += 1,
+            }
+        }
+        Ok((maps.p, stats))
+    }
+
+    /// P of frame `i` (loads the frame and its neighbours).
+    pub fn frame(&self, i: usize) -> Result<FloatImage> {
+        let mut loaded = HashMap::new();
+        loaded.insert(i, self.load(i)?);
+        for (_, j) in self.neighbours(i) {
+            loaded.insert(j, self.load(j)?);
+        }
+        let cam = self.input.camera.pinhole();
+        let flow = DisFlow::with_preset(self.params.flow_preset);
+        Ok(self.frame_with(i, &loaded, &cam, &flow)?.0)
+    }
+
+    /// Computes every frame in order, in parallel chunks (each frame's images are decoded
+    /// once per chunk that needs them); `each` gets every frame's P in frame order.
+    pub fn run(
+        &self,
+        progress: &dyn Progress,
+        label: &str,
+        mut each: impl FnMut(usize, FloatImage) -> Result<()>,
+    ) -> Result<RigidityStats> {
+        self.params
+            .validate()
+            .map_err(|e| Error::config(format!("motion.rigidity: {e}")))?;
+        let n = self.input.len();
+        let cam = self.input.camera.pinhole();
+        let flow = DisFlow::with_preset(self.params.flow_preset);
+        let chunk = 4 * rayon::current_num_threads().max(1);
+        let task = Task::begin(progress, label, n);
+        let mut loaded: HashMap<usize, GrayDepth> = HashMap::new();
+        let mut stats = RigidityStats::default();
+        let all: Vec<usize> = (0..n).collect();
+        for frames in all.chunks(chunk) {
+            let mut need: Vec<usize> = frames
+                .iter()
+                .flat_map(|&i| {
+                    std::iter::once(i).chain(self.neighbours(i).into_iter().map(|(_, j)| j))
+                })
+                .collect();
+            need.sort_unstable();
+            need.dedup();
+            loaded.retain(|k, _| need.binary_search(k).is_ok());
+            let missing: Vec<usize> = need
+                .into_iter()
+                .filter(|k| !loaded.contains_key(k))
+                .collect();
+            let new = missing
+                .par_iter()
+                .map(|&k| Ok((k, self.load(k)?)))
+                .collect::<Result<Vec<_>>>()?;
+            loaded.extend(new);
+            let out = frames
+                .par_iter()
+                .map(|&i| self.frame_with(i, &loaded, &cam, &flow))
+                .collect::<Result<Vec<_>>>()?;
+            for (&i, (p, s)) in frames.iter().zip(out) {
+                stats.add(s);
+                each(i, p)?;
+                task.step("");
+            }
+        }
+        Ok(stats)
+    }
+}
+
+/// The rigidity maps of `job` in the cache folder `root`: a folder `rigidity-<key>` is
+/// reused when its record matches the job exactly and every map exists, else computed.
+pub fn cached_rigidity(
+    job: &RigidityJob<'_>,
+    root: &Path,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<MapSet> {
+    let config = job.record();
+    let key = Fnv64::of(config.to_string().as_bytes());
+    let folder = MapFolder::new(root.join(format!("rigidity-{key}")));
+    let reused = folder.is_complete(job.input, &config);
+    if !reused {
+        folder.write_record(job.input, &config, "running", Value::Null)?;
+        let started = std::time::Instant::now();
+        let stats = job.run(progress, label, |i, p| {
+            folder.write_map(job.input, i, &MotionProbability::new(p))
+        })?;
+        folder.write_record(
+            job.input,
+            &config,
+            "complete",
+            json!({
+                "frames_computed": job.input.len(),
+                "seconds": started.elapsed().as_secs_f64(),
+                "threads": rayon::current_num_threads(),
+                "fits": stats,
+            }),
+        )?;
+    }
+    Ok(MapSet {
+        record: json!({
+            "source": if reused { "cache (key matched)" } else { "computed" },
+            "dir": folder.dir,
+            "key": key,
+            "config": config,
+        }),
+        folder,
+        ground_truth: Some(false),
+    })
+}
+
+/// The inputs of the geometric cue for a whole sequence: every frame's depth at the working
+/// resolution, the frame times and the poses of the pass before.
+pub struct GeometricInput {
+    depths: Vec<WorkingDepth>,
+    stamps: Vec<f64>,
+    poses: Vec<Option<Se3>>,
+    camera: PinholeCamera,
+    params: StaticDepthParams,
+}
+
+impl GeometricInput {
+    /// Reads every frame's depth (in parallel) and takes the poses.
+    pub fn load(input: &Input, poses: &FramePoses, params: &StaticDepthParams) -> Result<Self> {
+        params
+            .validate()
+            .map_err(|e| Error::config(format!("motion.static_depth: {e}")))?;
+        let n = input.len();
+        if poses.poses.len() != n {
+            return Err(Error::Input(format!(
+                "geometric cue: {} poses for {n} frames",
+                poses.poses.len()
+            )));
+        }
+        let factor = input.sequence.depth_factor;
+        let depths = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let d = dynapix_io::images::read_depth(&input.sequence.frames[i].depth, factor)?;
+                Ok(WorkingDepth::new(&d, params))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            depths,
+            stamps: input.timestamps(),
+            poses: poses.poses.iter().copied().map(Some).collect(),
+            camera: input.camera.pinhole(),
+            params: params.clone(),
+        })
+    }
+
+    /// The geometric cue of frame `i` (full resolution).
+    pub fn frame(&self, i: usize) -> Result<FloatImage> {
+        geometric_frame(
+            &self.camera,
+            i,
+            &self.stamps,
+            &self.poses,
+            &self.depths,
+            &self.params,
+        )
+        .map_err(|e| Error::Input(format!("frame {i}: geometric cue: {e}")))
+    }
+}
