@@ -210,7 +210,7 @@ fn splat_nearest(cam: &PinholeCamera, rays: &Rays, view: &DepthView<'_>, out: &m
     for j in 0..h {
         for i in 0..w {
             let z = d.get_pixel(i, j).0[0];
-            if !(z > 0.0) {
+            if z.is_nan() || z <= 0.0 {
                 continue;
             }
             let r = rays.at(i, j);
@@ -406,7 +406,7 @@ pub fn geometric_term(
     for _ in 0..params.fill_steps {
         let grown = dilate(&mask, wu, hu, 1);
         for (k, m) in mask.iter_mut().enumerate() {
-            if !(z[k] > params.min_depth) {
+            if z[k].is_nan() || z[k] <= params.min_depth {
                 *m = grown[k];
             }
         }

@@ -312,7 +312,11 @@ impl<E: FeatureExtractor> System<E> {
                 crate::orb::KeepMask::new(
                     w.as_image().width(),
                     w.as_image().height(),
-                    w.as_image().as_raw().iter().map(|&v| !(v < th)).collect(),
+                    w.as_image()
+                        .as_raw()
+                        .iter()
+                        .map(|&v| v.is_nan() || v >= th)
+                        .collect(),
                 )
             }
             _ => None,

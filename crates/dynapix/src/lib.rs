@@ -3,8 +3,10 @@
 //! `dynapix-slam` (the ORB-SLAM2-class backend weighted by w = 1 − P).
 //!
 //! - [`Config`]: the one configuration (method, paper/reference [`Mode`], sequence reading,
-//!   motion maps, SLAM, passes, online schedule), serde with the paper's defaults, loadable
-//!   from JSON or YAML.
+//!   motion maps and their [`Cues`], SLAM, passes, online schedule), serde with the paper's
+//!   defaults, loadable from JSON or YAML.
+//! - [`cues`]: the cues beyond the paper's terms on a sequence (pose-free rigidity maps, cached
+//!   once per sequence; the geometric cue's inputs).
 //! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process,
 //!   with a motion-map cache keyed by everything that determines the maps and a provenance
 //!   record of every input.

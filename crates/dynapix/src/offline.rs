@@ -1,16 +1,20 @@
 //! The offline runner (paper §3, offline schedule): sequence → first pass → motion maps →
 //! weighted pass(es), all in this process.
 //!
-//! - The **first pass** ([`FirstPass`], today plain ORB-SLAM2) gives the poses of the first
-//!   maps when they come from the system itself ([`PoseSource::Own`]); its trajectory is
-//!   cached by a hash of what determines it (frames, camera, SLAM parameters, vocabulary,
-//!   seed).
+//! - The **first pass** ([`FirstPass`]: the method's SLAM weighted by the pose-free rigidity
+//!   cue in paper mode, plain ORB-SLAM2 in reference mode) gives the poses of the first maps
+//!   when they come from the system itself ([`PoseSource::Own`]); its trajectory is cached by
+//!   a hash of what determines it (frames, camera, SLAM parameters, rigidity maps,
+//!   vocabulary, seed).
+//! - The **rigidity maps** need no poses: computed once per sequence and cached
+//!   ([`crate::cues`]).
 //! - The **motion maps** of weighted pass k are computed by [`crate::maps`] with the poses of
 //!   pass k − 1 (pass 0 = the first pass), or with fixed poses (ground truth, a file) for
 //!   every pass; they are cached by a hash of everything that determines them, and a
 //!   sequence's own `prob/` folder is used for the first weighted pass when present (its
 //!   `motion.json` tells whether ground truth made it).
-//! - **Weighted passes**: `passes.weighted` of them (1 = the paper).
+//! - **Weighted passes**: `passes.weighted` of them (paper mode 2, reference mode 1 = the
+//!   paper's schedule); P of each combines the enabled cues ([`crate::Cues`]) by noisy-or.
 //!
 //! Nothing here parses command lines or prints; progress goes to a [`Progress`] callback and
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
