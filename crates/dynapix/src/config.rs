@@ -821,6 +821,41 @@ mod tests {
     }
 
     #[test]
+    fn cues_are_switches_and_every_cue_off_is_an_error() {
+        let c = Config::from_yaml_str("motion:\n  cues: {paper: true, rigidity: false}\n").unwrap();
+        assert_eq!(
+            c.motion.cues,
+            Cues {
+                paper: true,
+                geometric: true,
+                rigidity: false
+            }
+        );
+        assert_eq!(c.cues().name(), "paper+geometric");
+        assert_eq!(Cues::only(&[Cue::Rigidity]).name(), "rigidity");
+        let e = Config::from_yaml_str(
+            "motion:\n  cues: {paper: false, geometric: false, rigidity: false}\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("motion.cues"), "{e}");
+        // ORB-SLAM2 needs no cue; the paper's ablations always use the paper's terms.
+        let mut off = Config::default().with_method(Method::Orbslam2);
+        off.motion.cues = Cues::only(&[]);
+        off.validate().unwrap();
+        let nm = Config::default().with_method(Method::NoMoving);
+        assert!(nm.cues().paper);
+        let e = Config::from_yaml_str("motion:\n  rigidity: {offsets: [0, 1]}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("offsets"), "{e}");
+        let e = Config::from_yaml_str("slam:\n  params: {static_features_min_weight: 2.0}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("static_features_min_weight"), "{e}");
+    }
+
+    #[test]
     fn load_names_the_file() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("c.yaml");
