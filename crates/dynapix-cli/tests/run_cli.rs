@@ -274,3 +274,62 @@ fn online_run_config_file_and_flags_shared_by_every_command() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(tracked_lines(&out.join("status.txt")), 10);
 }
+
+/// `run` prints and records the motionless floor and the earlier passes; `experiment`'s
+/// table carries the floor too.
+#[test]
+fn run_and_experiment_report_the_motionless_floor_and_every_pass() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 40);
+    for d in ["background", "depth_bg", "prob"] {
+        let _ = std::fs::remove_dir_all(seq.join(d));
+    }
+    let out = tmp.path().join("run");
+    let o = Command::new(bin())
+        .arg("run")
+        .arg(&seq)
+        .args(["--method", "dynapix", "--quiet", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("motionless floor"), "{stdout}");
+    assert!(
+        stdout.contains("pass first:") && stdout.contains("pass 1:"),
+        "{stdout}"
+    );
+    let j = run_json(&out);
+    assert!(j["results"][0]["motionless_floor_m"].as_f64().unwrap() > 0.0);
+    assert_eq!(j["cues"], "geometric+rigidity");
+    assert_eq!(j["first_pass_kind"], "rigidity");
+    let earlier = j["earlier_passes"].as_array().unwrap();
+    assert_eq!(earlier.len(), 2, "{earlier:?}");
+    assert!(out.join("passes/first/trajectory.txt").is_file());
+    assert!(out.join("passes/pass_1/trajectory.txt").is_file());
+    // The maps' record names every cue.
+    let maps = j["passes"][0]["maps"]["config"]["cues"].clone();
+    assert_eq!(maps["paper"], false);
+    assert!(
+        maps["geometric"].is_object() && maps["rigidity"].is_object(),
+        "{maps}"
+    );
+
+    let exp = tmp.path().join("exp");
+    let o = Command::new(bin())
+        .args([
+            "experiment",
+            "--methods",
+            "orbslam2",
+            "--quiet",
+            "--sequences",
+        ])
+        .arg(&seq)
+        .arg("--out")
+        .arg(&exp)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = std::fs::read_to_string(exp.join("table.md")).unwrap();
+    assert!(table.contains("motionless floor"), "{table}");
+}

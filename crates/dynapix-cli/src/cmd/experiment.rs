@@ -65,20 +65,24 @@ fn seq_name(p: &Path) -> String {
         .unwrap_or_else(|| p.display().to_string())
 }
 
-fn read_result(dir: &Path) -> Option<RunResult> {
+fn read_result(dir: &Path) -> Option<(RunResult, Option<f64>)> {
     let t = std::fs::read_to_string(dir.join("eval.json")).ok()?;
     let v: serde_json::Value = serde_json::from_str(&t).ok()?;
-    Some(RunResult {
-        name: dir
-            .file_name()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
-        ate_rmse_m: v["ate_rmse_m"].as_f64(),
-        pairs: v["pairs"].as_u64().unwrap_or(0) as usize,
-        tracking_rate: v["tracking_rate"].as_f64(),
-        missing_time_s: v["missing_time_s"].as_f64(),
-        error: v["error"].as_str().map(str::to_string),
-    })
+    let floor = v["motionless_floor_m"].as_f64();
+    Some((
+        RunResult {
+            name: dir
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            ate_rmse_m: v["ate_rmse_m"].as_f64(),
+            pairs: v["pairs"].as_u64().unwrap_or(0) as usize,
+            tracking_rate: v["tracking_rate"].as_f64(),
+            missing_time_s: v["missing_time_s"].as_f64(),
+            error: v["error"].as_str().map(str::to_string),
+        },
+        floor,
+    ))
 }
 
 /// Runs `dynapix experiment`.
@@ -183,7 +187,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         }
         let mut ms = Vec::new();
         for &m in &args.methods {
-            let runs: Vec<RunResult> = (0..args.runs)
+            let (runs, floors): (Vec<RunResult>, Vec<Option<f64>>) = (0..args.runs)
                 .filter_map(|k| {
                     read_result(
                         &args
@@ -194,8 +198,12 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                             .join(format!("run_{k}")),
                     )
                 })
-                .collect();
-            ms.push(dynapix_eval::aggregate::summarize(m.name(), runs));
+                .unzip();
+            ms.push(dynapix_eval::aggregate::summarize_with_floors(
+                m.name(),
+                runs,
+                floors,
+            ));
         }
         summaries.push(SequenceSummary {
             sequence: name.clone(),
