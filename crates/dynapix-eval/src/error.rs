@@ -38,6 +38,10 @@ pub enum EvalError {
     /// No RPE pairs could be formed for the given delta.
     #[error("no relative-pose pairs for the requested delta ({0})")]
     NoRpePairs(String),
+    /// An input pose or a result is not a finite number (e.g. a translation of 1e200 whose
+    /// square overflows): no figure is reported rather than NaN.
+    #[error("not finite: {0}")]
+    NonFinite(String),
     /// Reading a file failed.
     #[error("{path}: {source}")]
     Io {

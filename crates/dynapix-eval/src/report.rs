@@ -3,7 +3,7 @@
 //! serialisable report. This is what `dynapix eval --json` prints.
 
 use crate::ate::{AteParams, AteResult, ate};
-use crate::error::Result;
+use crate::error::{EvalError, Result};
 use crate::rpe::{RpeParams, RpeResult, rpe};
 use crate::tracking::{TrackingParams, TrackingResult, tracking_rate};
 use dynapix_geometry::Se3;
@@ -150,7 +150,21 @@ pub fn evaluate(
     reference: Option<&[f64]>,
     params: &EvalParams,
 ) -> Result<Evaluation> {
+    for (name, traj) in [("ground-truth", gt), ("estimated", est)] {
+        if let Some((t, _)) = traj
+            .iter()
+            .find(|(t, p)| !t.is_finite() || p.to_homogeneous().iter().any(|v| !v.is_finite()))
+        {
+            return Err(EvalError::NonFinite(format!("the {name} pose at t = {t}")));
+        }
+    }
     let ate_result = ate(gt, est, &params.ate)?;
+    if !ate_result.stats.rmse.is_finite() {
+        return Err(EvalError::NonFinite(format!(
+            "the ATE RMSE is {} (poses too large to square: check the units of the trajectory)",
+            ate_result.stats.rmse
+        )));
+    }
     let rpe_result = match &params.rpe {
         Some(p) => Some(rpe(gt, est, p)?),
         None => None,
@@ -172,4 +186,40 @@ pub fn evaluate(
         tracking,
         sim3: params.ate.sim3,
     })
+}
+
+#[cfg(test)]
+mod non_finite_tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn traj(scale: f64) -> Vec<(f64, Se3)> {
+        (0..20)
+            .map(|i| {
+                let t = i as f64 * 0.1;
+                let p = Se3::from_parts(
+                    Translation3::new(scale * t, 0.1 * (t * 3.0).sin(), 0.0),
+                    UnitQuaternion::from_euler_angles(0.0, 0.05 * t, 0.0),
+                );
+                (t, p)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn non_finite_poses_and_results_are_errors_not_nan() {
+        let gt = traj(1.0);
+        let p = EvalParams::default();
+        assert!(evaluate(&gt, &traj(1.0), None, &p).is_ok());
+        // A pose whose square overflows: the RMSE would be infinite or NaN.
+        let mut huge = traj(1.0);
+        huge[5].1.translation.vector.x = 1e200;
+        let e = evaluate(&gt, &huge, None, &p).unwrap_err();
+        assert!(matches!(e, EvalError::NonFinite(_)), "{e}");
+        // A NaN pose is named by its time.
+        let mut nan = traj(1.0);
+        nan[3].1.translation.vector.y = f64::NAN;
+        let e = evaluate(&gt, &nan, None, &p).unwrap_err().to_string();
+        assert!(e.contains("estimated pose at t = 0.3"), "{e}");
+    }
 }
