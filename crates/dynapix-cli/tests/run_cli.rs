@@ -333,3 +333,37 @@ fn run_and_experiment_report_the_motionless_floor_and_every_pass() {
     let table = std::fs::read_to_string(exp.join("table.md")).unwrap();
     assert!(table.contains("motionless floor"), "{table}");
 }
+
+/// A sequence where nothing can be tracked (all-zero depth) is a warning and exit code 1,
+/// with the outputs written; `--allow-untracked` accepts it.
+#[test]
+fn nothing_tracked_is_not_a_silent_success() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 8);
+    for e in std::fs::read_dir(seq.join("depth")).unwrap() {
+        let p = e.unwrap().path();
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(320, 240)
+            .save(&p)
+            .unwrap();
+    }
+    let out = tmp.path().join("slam");
+    let run = |extra: &[&str]| {
+        Command::new(bin())
+            .arg("slam")
+            .arg(&seq)
+            .args(["--quiet", "--out"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("nothing tracked") && err.contains("--allow-untracked"),
+        "{err}"
+    );
+    assert!(out.join("status.txt").is_file());
+    assert!(run(&["--allow-untracked"]).status.success());
+}

@@ -600,6 +600,13 @@ impl Config {
                 )));
             }
         }
+        if let dynapix_slam::dynapix::ProbUpdate::Ema { alpha } = d.update
+            && !(alpha.is_finite() && alpha > 0.0 && alpha <= 1.0)
+        {
+            return Err(Error::config(format!(
+                "slam.params.map.dynapix.update: the EMA weight must lie in (0, 1], got {alpha}"
+            )));
+        }
         if self.online.past_offsets.iter().any(|&o| o >= 0) {
             return Err(Error::config(
                 "online.past_offsets must be negative (the moving term uses past neighbours only)",
@@ -849,6 +856,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("offsets"), "{e}");
+        let mut c = Config::default();
+        c.slam.params.map.dynapix.update = dynapix_slam::dynapix::ProbUpdate::Ema { alpha: 2.0 };
+        assert!(c.validate().unwrap_err().to_string().contains("EMA weight"));
+        c.slam.params.map.dynapix.update =
+            dynapix_slam::dynapix::ProbUpdate::Ema { alpha: f32::NAN };
+        assert!(c.validate().is_err());
         let e = Config::from_yaml_str("slam:\n  params: {static_features_min_weight: 2.0}\n")
             .unwrap_err()
             .to_string();

@@ -276,3 +276,24 @@ pub fn plots(seq_dir: &Path, traj: &Path, dir: &Path) -> anyhow::Result<()> {
     dynapix_eval::plot::write_plots(dir, &ev.ate)?;
     Ok(())
 }
+
+/// "Nothing tracked" is not a success: a warning naming the sequence, then an error unless
+/// the user allowed it (`--allow-untracked`). The outputs are already written.
+pub fn check_tracked(seq: &Path, tracked: usize, allow: bool) -> anyhow::Result<()> {
+    if tracked > 0 {
+        return Ok(());
+    }
+    eprintln!(
+        "warning: no frame of {} was tracked (all-zero depth, black or featureless frames, or \
+         a camera that does not match the images?)",
+        seq.display()
+    );
+    if allow {
+        Ok(())
+    } else {
+        anyhow::bail!(
+            "nothing tracked in {} (outputs written; pass --allow-untracked to exit 0)",
+            seq.display()
+        )
+    }
+}

@@ -159,6 +159,10 @@ pub struct Args {
     /// stopping with an error.
     #[arg(long)]
     pub allow_missing_prob: bool,
+    /// Exit 0 even when no frame was tracked (otherwise a warning and exit code 1; the
+    /// outputs are written either way).
+    #[arg(long)]
+    pub allow_untracked: bool,
     /// Online: push frames one at a time; motion from past frames only (plus `--lookahead`),
     /// poses reported as they are known (written to `trajectory.txt`).
     #[arg(long)]
@@ -186,6 +190,8 @@ pub struct RunOutcome {
     pub floor: Option<f64>,
     /// Evaluations of the passes before the final one (first pass, weighted pass 1, …).
     pub earlier_passes: Vec<Value>,
+    /// Frames tracked in each run's final pass.
+    pub tracked: Vec<usize>,
 }
 
 /// One run to execute: a configuration on an opened sequence.
@@ -278,6 +284,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         written_trajectory: None,
         floor: None,
         earlier_passes: Vec::new(),
+        tracked: Vec::new(),
     };
     let mut record = Value::Null;
     let mut runs = Vec::new();
@@ -304,6 +311,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             }
             outcome.earlier_passes = earlier;
         }
+        outcome.tracked.push(pass.stats.tracked);
         let mut stats = serde_json::to_value(pass.stats)?;
         let ev = evaluate_into(spec.input, &dir, &mut stats, true)?;
         outcome
@@ -442,6 +450,7 @@ pub fn execute_online(
         tracking_rate: vec![ev.as_ref().and_then(|r| r.result.tracking_rate)],
         floor: ev.as_ref().and_then(|r| r.motionless_floor_m),
         earlier_passes: Vec::new(),
+        tracked: vec![tracked],
         prob_dir: None,
         written_trajectory: None,
     })
@@ -518,5 +527,6 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         }
     }
     println!("trajectory: {}", o.trajectory.display());
-    Ok(())
+    let least = o.tracked.iter().copied().min().unwrap_or(0);
+    super::common::check_tracked(&args.seq.seq_dir, least, args.allow_untracked)
 }

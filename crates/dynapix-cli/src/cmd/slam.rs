@@ -59,6 +59,10 @@ pub struct Args {
     /// Turn loop closing off (on by default; closed loops are listed in `OUT/loops.txt`).
     #[arg(long)]
     pub no_loop_closing: bool,
+    /// Exit 0 even when no frame was tracked (otherwise a warning and exit code 1; the
+    /// outputs are written either way).
+    #[arg(long)]
+    pub allow_untracked: bool,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -224,5 +228,5 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if let Some(path) = &args.save_map {
         save_map(path, &session, input.camera.settings.depth_map_factor)?;
     }
-    Ok(())
+    super::common::check_tracked(&args.seq.seq_dir, tracked, args.allow_untracked)
 }
