@@ -201,6 +201,8 @@ impl RawSettings {
 
 /// Applies the OpenCV-YAML tolerances (see the module doc) without changing line numbers.
 fn preprocess(text: &str) -> String {
+    // A UTF-8 byte-order mark (editors on Windows write one) is not part of the first key.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut out = String::with_capacity(text.len() + 16);
     for line in text.split('\n') {
         let trimmed = line.trim_start();
@@ -226,6 +228,41 @@ fn preprocess(text: &str) -> String {
         out.push('\n');
     }
     out
+}
+
+/// A top-level key given twice with different values is an error naming both lines (upstream
+/// ORB-SLAM2 files repeat some keys with the same value, which is accepted).
+fn check_duplicates(text: &str, path: &Path) -> Result<()> {
+    let mut seen: HashMap<&str, (usize, &str)> = HashMap::new();
+    for (i, line) in text.split('\n').enumerate() {
+        if line.starts_with([' ', '\t', '#']) {
+            continue;
+        }
+        let Some((key, value)) = line.split_once(':') else {
+            continue;
+        };
+        let (key, value) = (key.trim(), value.trim());
+        if key.is_empty() {
+            continue;
+        }
+        match seen.get(key) {
+            Some(&(first, v)) if v != value => {
+                return Err(IoError::parse(
+                    path,
+                    i + 1,
+                    format!(
+                        "{key} is given twice with different values (line {first}: {v}, line {}: {value})",
+                        i + 1
+                    ),
+                ));
+            }
+            Some(_) => {}
+            None => {
+                seen.insert(key, (i + 1, value));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// 1-based line of each top-level key (the last occurrence, matching the value kept).
@@ -286,8 +323,11 @@ impl Settings {
 
     fn parse_impl(text: &str, path: &Path, lenient: bool) -> Result<(Self, Vec<&'static str>)> {
         let pre = preprocess(text);
+        check_duplicates(&pre, path)?;
         let lines = key_lines(&pre);
         let options = serde_saphyr::options! {
+            // Upstream files repeat keys with the same value; different values are refused
+            // by `check_duplicates` before this parse.
             duplicate_keys: serde_saphyr::DuplicateKeyPolicy::LastWins,
             with_snippet: false,
         };
@@ -773,6 +813,25 @@ mod tests {
         assert_eq!(Settings::grade().depth_map_factor, 1000.0);
         assert!(Settings::preset("TUM3").is_some());
         assert!(Settings::preset("kitti").is_none());
+    }
+
+    #[test]
+    fn byte_order_mark_is_accepted_and_duplicate_keys_are_errors() {
+        let text = Settings::tum1().to_yaml_string();
+        let with_bom = format!("\u{feff}{text}");
+        let s = Settings::parse(&with_bom, Path::new("camera.yaml")).unwrap();
+        assert_eq!(s, Settings::parse(&text, Path::new("camera.yaml")).unwrap());
+        let dup = format!("{text}Camera.fx: 500.0\n");
+        let e = Settings::parse(&dup, Path::new("camera.yaml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("camera.yaml") && e.contains("Camera.fx is given twice"),
+            "{e}"
+        );
+        // The same value twice (as upstream files have) is fine.
+        let same = format!("{text}Camera.width: 640\n");
+        assert!(Settings::parse(&same, Path::new("camera.yaml")).is_ok());
     }
 
     #[test]
