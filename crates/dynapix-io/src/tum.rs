@@ -53,9 +53,22 @@ pub fn read_list(path: impl AsRef<Path>) -> Result<Vec<ListEntry>> {
 /// Parses image-list text; `path` is only used in error messages.
 pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListEntry>> {
     let mut out: Vec<ListEntry> = Vec::new();
+    let mut last_line = 0;
     for line in data_lines(text) {
         expect_columns(path, &line, 2, "timestamp path")?;
         let t = parse_f64(path, line.no, line.fields[0], "timestamp")?;
+        if out.last().is_some_and(|l| l.t == t) {
+            // In an image list a repeated timestamp would silently drop a frame.
+            return Err(IoError::parse(
+                path,
+                line.no,
+                format!(
+                    "timestamp {} repeats line {last_line}: every image needs its own time",
+                    line.fields[0]
+                ),
+            ));
+        }
+        last_line = line.no;
         let entry = ListEntry {
             t,
             path: line.fields[1].to_string(),
@@ -493,13 +506,11 @@ mod tests {
         assert!(s.contains("depth.txt:2") && s.contains("sorted"), "{s}");
         let s = e(read_list("/no/such/rgb.txt"));
         assert!(s.contains("/no/such/rgb.txt"), "{s}");
-        let dup = parse_list("1.0 a.png\n1.0 b.png\n", Path::new("x")).unwrap();
-        assert_eq!(
-            dup,
-            vec![ListEntry {
-                t: 1.0,
-                path: "b.png".into()
-            }]
+        // A repeated timestamp would drop a frame: an error naming both lines.
+        let s = e(parse_list("1.0 a.png\n1.0 b.png\n", Path::new("rgb.txt")));
+        assert!(
+            s.contains("rgb.txt:2") && s.contains("repeats line 1"),
+            "{s}"
         );
 
         let e = |t: &str| {

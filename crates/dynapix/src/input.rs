@@ -183,7 +183,8 @@ pub struct Input {
 fn read_settings(path: &Path) -> Result<(Settings, Vec<String>)> {
     let (s, missing) = Settings::read_lenient(path)?;
     if !missing.is_empty() {
-        tracing::debug!(
+        // Not silent: a wrong DepthMapFactor scales every depth.
+        tracing::warn!(
             "{}: missing keys take the TUM values: {}",
             path.display(),
             missing.join(", ")
