@@ -387,9 +387,11 @@ impl Sequence {
             || params.camera.fx <= 0.0
             || params.camera.fy <= 0.0
         {
+            let c = &params.camera;
             return Err(SynthError::InvalidParams(format!(
-                "invalid camera {:?}",
-                params.camera
+                "the camera needs a positive size and focal length, got {}×{} px with fx {} \
+                 and fy {} (check --width/--height/--fx/--fy)",
+                c.width, c.height, c.fx, c.fy
             )));
         }
         if params.fps <= 0.0 || !params.fps.is_finite() {
@@ -690,6 +692,20 @@ mod tests {
             scene: SceneParams::for_width(160),
             ..SynthParams::default()
         }
+    }
+
+    #[test]
+    fn a_zero_size_camera_is_a_readable_error() {
+        let mut p = small(Preset::WalkingXyz, 0, SensorParams::default());
+        p.camera.width = 0;
+        let e = Sequence::new(p)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(
+            e.contains("0×120 px") && !e.contains("PinholeCamera"),
+            "{e}"
+        );
     }
 
     #[test]
