@@ -227,9 +227,7 @@ pub fn cached_rigidity(
     progress: &dyn Progress,
 ) -> Result<MapSet> {
     let config = job.record();
-    let key = Fnv64::of(config.to_string().as_bytes());
-    let folder = MapFolder::new(root.join(format!("rigidity-{key}")));
-    let reused = folder.is_complete(job.input, &config);
+    let (folder, key, reused) = MapFolder::in_cache(root, "rigidity", job.input, &config);
     if !reused {
         folder.write_record(job.input, &config, "running", Value::Null)?;
         let started = std::time::Instant::now();

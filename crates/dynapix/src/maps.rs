@@ -470,6 +470,20 @@ impl MapFolder {
         Ok(())
     }
 
+    /// The cache folder `<root>/<prefix>-<key>` of the maps that `config` (their record's
+    /// `config` document) describes, its key, and whether it already holds them complete.
+    pub fn in_cache(
+        root: &Path,
+        prefix: &str,
+        input: &Input,
+        config: &Value,
+    ) -> (Self, String, bool) {
+        let key = Fnv64::of(config.to_string().as_bytes());
+        let folder = Self::new(root.join(format!("{prefix}-{key}")));
+        let reused = folder.is_complete(input, config);
+        (folder, key, reused)
+    }
+
     /// True when the record says `config`, the run completed, and every frame's map exists.
     pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
         let Some(Ok(rec)) = self.read_record() else {
@@ -563,9 +577,7 @@ pub fn cached_maps(
     progress: &dyn Progress,
 ) -> Result<MapSet> {
     let config = job.record();
-    let key = Fnv64::of(config.to_string().as_bytes());
-    let folder = MapFolder::new(root.join(format!("maps-{key}")));
-    let reused = folder.is_complete(job.input, &config);
+    let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
     if !reused {
         compute_into(job, &folder, &config, label, progress)?;
     }
