@@ -315,3 +315,45 @@ fn bad_input_fails_with_file_and_line() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("timestamp pairs"), "{err}");
 }
+
+/// A run that cannot be evaluated (a pose too large to square) is named, the means say how
+/// many runs they use, and the exit code is non-zero; `eval --est` on it is an error too.
+#[test]
+fn failed_runs_are_counted_named_and_fail_the_command() {
+    let tmp = tempfile::tempdir().unwrap();
+    let m = tmp.path().join("runs").join("m");
+    std::fs::create_dir_all(&m).unwrap();
+    let good = std::fs::read_to_string(small_est()).unwrap();
+    std::fs::write(m.join("a.txt"), &good).unwrap();
+    let mut lines: Vec<String> = good.lines().map(str::to_string).collect();
+    let k = lines
+        .iter()
+        .position(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .unwrap()
+        + 5;
+    let mut f: Vec<String> = lines[k].split_whitespace().map(str::to_string).collect();
+    f[1] = "1e200".into();
+    lines[k] = f.join(" ");
+    std::fs::write(m.join("b.txt"), lines.join("\n") + "\n").unwrap();
+    let out = bin()
+        .args(["eval", "--gt"])
+        .arg(small_gt())
+        .arg("--runs")
+        .arg(tmp.path().join("runs"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stdout.contains("1 of 2 runs used"), "{stdout}");
+    assert!(stderr.contains("b.txt"), "{stderr}");
+    let out = bin()
+        .args(["eval", "--gt"])
+        .arg(small_gt())
+        .arg("--est")
+        .arg(m.join("b.txt"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not finite"));
+}

@@ -345,6 +345,40 @@ fn output_table(
     gts: Vec<(String, LoadedGt)>,
 ) -> anyhow::Result<()> {
     let table = paper_table(seqs);
+    // Runs that could not be evaluated: named, counted in every mean's n, and an error exit.
+    let mut counts = Vec::new();
+    let mut failed = Vec::new();
+    for s in &table.sequences {
+        for m in &s.methods {
+            let bad: Vec<&str> = m
+                .runs
+                .iter()
+                .filter(|r| r.ate_rmse_m.is_none())
+                .map(|r| r.name.as_str())
+                .collect();
+            let given = m.runs.len();
+            counts.push(format!(
+                "{} / {}: {} of {given} runs used",
+                s.sequence,
+                m.method,
+                given - bad.len()
+            ));
+            if !bad.is_empty() {
+                failed.push(format!("{} / {}: {}", s.sequence, m.method, bad.join(", ")));
+            }
+        }
+    }
+    let verdict = || {
+        if failed.is_empty() {
+            Ok(())
+        } else {
+            Err(anyhow::anyhow!(
+                "{} method(s) with runs that could not be evaluated (left out of mean ± std): {}",
+                failed.len(),
+                failed.join("; ")
+            ))
+        }
+    };
     if let Some(dir) = args.out.as_deref() {
         for f in write_table(dir, &table)? {
             tracing::info!("wrote {}", f.display());
@@ -356,7 +390,7 @@ fn output_table(
             ground_truth: gts.iter().map(|(name, gt)| gt.json(Some(name))).collect(),
         };
         println!("{}", serde_json::to_string_pretty(&out)?);
-        return Ok(());
+        return verdict();
     }
     for (name, gt) in &gts {
         println!("Ground truth of {name}: {}", gt.info.description());
@@ -394,7 +428,8 @@ fn output_table(
         println!();
     }
     println!("{}", table.to_markdown());
-    Ok(())
+    println!("Runs per mean: {}", counts.join("; "));
+    verdict()
 }
 
 fn print_single(ev: &Evaluation, p: &EvalParams) {
