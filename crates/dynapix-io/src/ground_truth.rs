@@ -235,17 +235,8 @@ pub fn camera_trajectory(path: impl AsRef<Path>) -> Result<Trajectory> {
 mod tests {
     use super::*;
     use nalgebra::{Point3, UnitQuaternion, Vector3};
-    use std::path::PathBuf;
 
-    fn data_dir() -> Option<PathBuf> {
-        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
-        if d.is_dir() {
-            Some(d)
-        } else {
-            eprintln!("skipped real-data part: {} not found", d.display());
-            None
-        }
-    }
+    use crate::testutil::data_dir;
 
     #[test]
     fn t_ros_is_a_self_inverse_rotation_and_t_m_is_projected() {

@@ -402,15 +402,7 @@ pub fn read_prob_pfm(path: impl AsRef<Path>) -> Result<ProbMap> {
 mod tests {
     use super::*;
 
-    fn data_dir() -> Option<PathBuf> {
-        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
-        if d.is_dir() {
-            Some(d)
-        } else {
-            eprintln!("skipped: {} not found", d.display());
-            None
-        }
-    }
+    use crate::testutil::data_dir;
 
     #[test]
     fn depth_round_trip_and_metres() {

@@ -30,6 +30,8 @@ pub mod ground_truth;
 pub mod images;
 pub mod sequence;
 pub mod settings;
+#[cfg(test)]
+mod testutil;
 mod text;
 pub mod trajectory;
 pub mod tum;

@@ -659,15 +659,7 @@ mod tests {
     use image::{Luma, Rgb};
     use nalgebra::Vector3;
 
-    fn data_dir() -> Option<PathBuf> {
-        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
-        if d.is_dir() {
-            Some(d)
-        } else {
-            eprintln!("skipped: {} not found", d.display());
-            None
-        }
-    }
+    use crate::testutil::data_dir;
 
     #[test]
     fn sequence_is_shareable_across_threads() {

@@ -386,17 +386,8 @@ pub fn write_status(path: impl AsRef<Path>, entries: &[StampedStatus]) -> Result
 mod tests {
     use super::*;
     use nalgebra::Vector3;
-    use std::path::PathBuf;
 
-    fn data_dir() -> Option<PathBuf> {
-        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
-        if d.is_dir() {
-            Some(d)
-        } else {
-            eprintln!("skipped: {} not found", d.display());
-            None
-        }
-    }
+    use crate::testutil::data_dir;
 
     fn pose(t: [f64; 3], axis_angle: [f64; 3]) -> Se3 {
         Se3::new(Vector3::from(t), Vector3::from(axis_angle))

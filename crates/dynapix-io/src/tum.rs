@@ -350,15 +350,7 @@ mod tests {
         assert_eq!(near[0].t_depth, 1.004);
     }
 
-    fn data_dir() -> Option<PathBuf> {
-        let d = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"));
-        if d.is_dir() {
-            Some(d)
-        } else {
-            eprintln!("skipped: {} not found", d.display());
-            None
-        }
-    }
+    use crate::testutil::data_dir;
 
     /// The literal O(n·m) algorithm of `associate.py`, to check the windowed version.
     fn associate_reference(a: &[f64], b: &[f64], offset: f64, max: f64) -> Vec<(usize, usize)> {

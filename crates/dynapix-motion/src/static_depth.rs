@@ -507,6 +507,17 @@ mod tests {
         })
     }
 
+    /// Views of `depths` from the current camera's own pose.
+    fn same_pose_views(depths: &[WorkingDepth]) -> Vec<DepthView<'_>> {
+        depths
+            .iter()
+            .map(|d| DepthView {
+                depth: d,
+                t_cs: Se3::identity(),
+            })
+            .collect()
+    }
+
     fn params() -> StaticDepthParams {
         StaticDepthParams {
             working_width: 80,
@@ -535,13 +546,7 @@ mod tests {
         let nb: Vec<WorkingDepth> = (0..4)
             .map(|_| WorkingDepth::new(&wall(w, h, 3.0, None), &p))
             .collect();
-        let views: Vec<DepthView> = nb
-            .iter()
-            .map(|d| DepthView {
-                depth: d,
-                t_cs: Se3::identity(),
-            })
-            .collect();
+        let views = same_pose_views(&nb);
         let sd = static_depth(&c, &views, &p).unwrap();
         assert!((sd.depth.get_pixel(5, 5).0[0] - 3.0).abs() < 1e-4);
         let g = geometric_term(&cur, &sd, &p).unwrap();
@@ -561,13 +566,7 @@ mod tests {
         let d = wall(w, h, 3.0, Some((20, 20, 40, 40, 1.0)));
         let cur = WorkingDepth::new(&d, &p);
         let nb: Vec<WorkingDepth> = (0..4).map(|_| WorkingDepth::new(&d, &p)).collect();
-        let views: Vec<DepthView> = nb
-            .iter()
-            .map(|d| DepthView {
-                depth: d,
-                t_cs: Se3::identity(),
-            })
-            .collect();
+        let views = same_pose_views(&nb);
         let sd = static_depth(&c, &views, &p).unwrap();
         let g = geometric_term(&cur, &sd, &p).unwrap();
         assert!(g.as_raw().iter().all(|&v| v == 0.0));
