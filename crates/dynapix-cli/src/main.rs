@@ -41,6 +41,8 @@ enum Command {
     Experiment(cmd::experiment::Args),
     /// The one-command demo: synthetic walking sequences, ORB-SLAM2 vs DynaPix, report.
     Demo(cmd::demo::Args),
+    /// Measure one run from scratch: time per stage, frames/s, CPU, memory, ATE.
+    Bench(cmd::bench::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -52,10 +54,21 @@ fn main() -> std::process::ExitCode {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
+    // The stage profiler only measures between start and stop (`dynapix bench`).
+    let profiler = dynapix::profile::StageProfiler::new();
+    {
+        use tracing_subscriber::Layer;
+        use tracing_subscriber::layer::SubscriberExt;
+        use tracing_subscriber::util::SubscriberInitExt;
+        tracing_subscriber::registry()
+            .with(
+                tracing_subscriber::fmt::layer()
+                    .with_writer(std::io::stderr)
+                    .with_filter(filter),
+            )
+            .with(profiler.layer())
+            .init();
+    }
     let bars = cmd::common::Bars::new(cli.quiet);
     let result = match cli.command {
         Command::Eval(a) => cmd::eval::run(a),
@@ -67,6 +80,7 @@ fn main() -> std::process::ExitCode {
         Command::Run(a) => cmd::run::run(a, &bars),
         Command::Experiment(a) => cmd::experiment::run(a, &bars),
         Command::Demo(a) => cmd::demo::run(a, &bars),
+        Command::Bench(a) => cmd::bench::run(a, &bars, &profiler),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -264,8 +264,12 @@ fn pair(ctx: &PairContext, nb: &Neighbour) -> Result<PairResult, MotionError> {
         nb.t_cn
     };
     let (wd, wb) = rayon::join(
-        || splat(nb.frame.rgb, nb.frame.depth, &t_cn, cam, splat_params),
         || {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "paper: splat").entered();
+            splat(nb.frame.rgb, nb.frame.depth, &t_cn, cam, splat_params)
+        },
+        || {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "paper: splat").entered();
             splat(
                 nb.frame.background,
                 nb.frame.background_depth,
@@ -283,7 +287,16 @@ fn pair(ctx: &PairContext, nb: &Neighbour) -> Result<PairResult, MotionError> {
             to_gray_filled(&wb, cur.background),
         ),
     };
-    let (fd, fs) = rayon::join(|| flow.flow(cur_gray, &gd), || flow.flow(bg_gray, &gb));
+    let (fd, fs) = rayon::join(
+        || {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "paper: flow").entered();
+            flow.flow(cur_gray, &gd)
+        },
+        || {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "paper: flow").entered();
+            flow.flow(bg_gray, &gb)
+        },
+    );
     let r = flow_difference(&fd?, &fs?)?;
     let valid = match mode {
         Mode::Reference => vec![true; r.len()],

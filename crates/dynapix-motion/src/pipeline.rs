@@ -104,6 +104,7 @@ pub fn motion_probability(
     let (d, m) = rayon::join(
         || -> Result<FloatImage, MotionError> {
             if params.use_movable {
+                let _stage = tracing::info_span!(target: "dynapix::stage", "paper: movable term").entered();
                 Ok(movable(cur.rgb, cur.background, cur.depth, &params.movable)?.d)
             } else {
                 Ok(ones())

@@ -334,6 +334,7 @@ impl SequenceMotion<'_> {
                         }
                     })
                     .collect();
+                let _stage = tracing::info_span!(target: "dynapix::stage", "paper: background").entered();
                 let b = reconstruct_background(
                     &cur.rgb,
                     &cur.depth,

@@ -471,7 +471,11 @@ pub fn geometric_frame(
     if views.is_empty() {
         return Ok(FloatImage::new(cam.width, cam.height));
     }
-    let sd = static_depth(cam, &views, params)?;
+    let sd = {
+        let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: static depth").entered();
+        static_depth(cam, &views, params)?
+    };
+    let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: term").entered();
     geometric_term(cur, &sd, params)
 }
 

@@ -136,6 +136,11 @@ impl LoopCloser {
         Some(event)
     }
 
+    /// The parameters.
+    pub fn params(&self) -> &LoopClosingParams {
+        &self.params
+    }
+
     /// Loops closed so far, in order.
     pub fn events(&self) -> &[LoopEvent] {
         &self.events

@@ -53,6 +53,10 @@ pub struct SystemParams {
     /// weight w = 1 − P is at least this value, so the extractor spends its whole budget on
     /// the static scene (None: everywhere, as ORB-SLAM2).
     pub static_features_min_weight: Option<f32>,
+    /// Offline refinement at the end of a sequence: one robust, weighted global bundle
+    /// adjustment over every keyframe and map point (see [`System::finish`]). ORB-SLAM2 runs a
+    /// global BA only after a loop; off in ORB-SLAM2 mode.
+    pub final_global_ba: bool,
 }
 
 /// One input frame.
@@ -182,6 +186,8 @@ pub struct System<E> {
     localization: bool,
     /// See [`SystemParams::static_features_min_weight`].
     static_features_min_weight: Option<f32>,
+    /// See [`SystemParams::final_global_ba`].
+    final_global_ba: bool,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -201,7 +207,28 @@ impl<E: FeatureExtractor> System<E> {
             vocab: None,
             localization: false,
             static_features_min_weight: params.static_features_min_weight,
+            final_global_ba: params.final_global_ba,
         }
+    }
+
+    /// Ends an offline sequence: with [`SystemParams::final_global_ba`], one robust weighted
+    /// global bundle adjustment over the whole map, after which [`System::trajectory`] reports
+    /// every frame relative to its refined reference keyframe. Returns the BA's counters
+    /// (`None` when it is off, in localisation mode, or the map is empty).
+    pub fn finish(&mut self) -> Option<crate::loop_closing::correct::global_ba::Output> {
+        if !self.final_global_ba || self.localization || self.map.num_keyframes() < 2 {
+            return None;
+        }
+        let _stage = tracing::info_span!(target: "dynapix::stage", "final global BA").entered();
+        let params = crate::loop_closing::correct::CorrectionParams {
+            global_ba_robust: true,
+            ..self.closer.params().correction.clone()
+        };
+        Some(crate::loop_closing::correct::global_ba::run(
+            &mut self.map,
+            &self.cam,
+            &params,
+        ))
     }
 
     /// A system in localisation mode on a previously built `map` (e.g. from
@@ -307,6 +334,7 @@ impl<E: FeatureExtractor> System<E> {
         let index = self.next_index;
         self.next_index += 1;
         let t0 = Instant::now();
+        let stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
         let keep = match (self.static_features_min_weight, input.weights) {
             (Some(th), Some(w)) if w.dimensions() == input.gray.dimensions() => {
                 crate::orb::KeepMask::new(
@@ -325,7 +353,9 @@ impl<E: FeatureExtractor> System<E> {
             Some(k) => self.extractor.extract_where(input.gray, Some(k)),
             None => self.extractor.extract(input.gray),
         };
+        drop(stage);
         let t1 = Instant::now();
+        let stage = tracing::info_span!(target: "dynapix::stage", "tracking").entered();
         let mut frame = Frame::new(
             index,
             input.timestamp,
@@ -357,8 +387,10 @@ impl<E: FeatureExtractor> System<E> {
             }
             _ => None,
         };
+        drop(stage);
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "local mapping").entered();
             mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
         }
         let t3 = Instant::now();
@@ -366,6 +398,7 @@ impl<E: FeatureExtractor> System<E> {
         if let Some(kf) = out.new_keyframe
             && self.map.keyframe(kf).is_some()
         {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "loop closing").entered();
             loop_closure = self.closer.step(&mut self.map, kf, self.vocab.as_ref());
         }
         let t4 = Instant::now();

@@ -229,6 +229,7 @@ pub fn cached_rigidity(
     let config = job.record();
     let (folder, key, reused) = MapFolder::in_cache(root, "rigidity", job.input, &config);
     if !reused {
+        let _phase = tracing::info_span!(target: "dynapix::phase", "rigidity maps").entered();
         folder.write_record(job.input, &config, "running", Value::Null)?;
         let started = std::time::Instant::now();
         let stats = job.run(progress, label, |i, p| {
@@ -285,6 +286,7 @@ impl GeometricInput {
         let depths = (0..n)
             .into_par_iter()
             .map(|i| {
+                let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
                 let d = dynapix_io::images::read_depth(&input.sequence.frames[i].depth, factor)?;
                 Ok(WorkingDepth::new(&d, params))
             })

@@ -323,6 +323,7 @@ impl Input {
 
     /// The colour image and depth (metres) of frame `i`.
     pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, dynapix_io::DepthImage)> {
+        let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
         Ok(self.sequence.load_rgbd(i)?)
     }
 

@@ -12,6 +12,7 @@
 //!   record of every input.
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
+//! - [`bench`] and [`profile`]: one measured run, stage by stage (`dynapix bench`).
 //! - [`MotionProbability`] and [`StaticWeights`]: P and w = 1 − P as distinct types.
 //!
 //! Streaming a sequence folder through the online mode:
@@ -53,6 +54,7 @@
 
 #![deny(missing_docs)]
 
+pub mod bench;
 pub mod config;
 pub mod cues;
 pub mod error;
@@ -63,9 +65,11 @@ pub mod method;
 pub mod offline;
 pub mod online;
 pub mod poses;
+pub mod profile;
 pub mod progress;
 pub mod slam;
 
+pub use bench::{BenchReport, bench_offline, bench_online};
 pub use config::{
     BackgroundSource, Config, Cue, Cues, FirstPass, FlowPreset, MotionConfig, OnlineConfig,
     PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,

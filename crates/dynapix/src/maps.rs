@@ -354,6 +354,7 @@ impl<'a> MapJob<'a> {
                             .folder
                             .map_path(self.input, i)
                             .ok_or("frame without a file name")?;
+                        let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
                         dynapix_io::images::read_motion_probability(path)?.into_image()
                     }
                     None => rig_job.frame(i)?,
@@ -499,6 +500,7 @@ impl MapFolder {
         let path = self
             .map_path(input, i)
             .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+        let _stage = tracing::info_span!(target: "dynapix::stage", "write maps").entered();
         write_motion_probability(path, p)?;
         Ok(())
     }
@@ -605,6 +607,7 @@ pub fn compute_into(
     label: &str,
     progress: &dyn Progress,
 ) -> Result<SequenceStats> {
+    let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
     folder.write_record(job.input, config, "running", Value::Null)?;
     let task = Task::begin(progress, label, n);

@@ -153,6 +153,7 @@ impl<'a> OfflineRunner<'a> {
         label: &str,
         progress: &dyn Progress,
     ) -> Result<PassOutput> {
+        let _phase = tracing::info_span!(target: "dynapix::phase", "SLAM passes").entered();
         let config = self.config.clone().with_method(method);
         let mut params = config.system_params();
         params.tracking.reloc.seed = params.tracking.reloc.seed.wrapping_add(seed);

@@ -204,6 +204,17 @@ impl SlamSession {
         Ok(res)
     }
 
+    /// Ends the sequence (the system's final refinement, if its parameters ask for one).
+    pub fn finish(&mut self) {
+        if let Some(g) = self.system.finish() {
+            tracing::info!(
+                "final global BA: {} observations, {} outliers",
+                g.edges,
+                g.outliers
+            );
+        }
+    }
+
     /// Counts a frame that ran unweighted because its map was missing.
     pub fn note_missing_weights(&mut self) {
         self.missing_weights += 1;
@@ -297,6 +308,7 @@ fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path
                 missing = true;
                 Ok(None)
             } else {
+                let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
                 read_static_weights(&p)
                     .map(|w| match threshold {
                         Some(g) => Some(w.thresholded(g)),
@@ -355,5 +367,6 @@ pub fn run_pass(
         Ok(())
     })?;
     drop(task);
+    session.finish();
     Ok(session.output())
 }

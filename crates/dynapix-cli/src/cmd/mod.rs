@@ -1,4 +1,5 @@
 //! Subcommands, one module each, and what they share.
+pub mod bench;
 pub mod common;
 pub mod demo;
 pub mod eval;

@@ -1,0 +1,326 @@
+//! One measured run of a method on a sequence (`dynapix bench`): wall and CPU time, frames
+//! per second, peak memory and where the time went, stage by stage ([`crate::profile`]).
+//!
+//! An offline bench computes everything (first pass, rigidity maps, motion maps, every pass)
+//! in a fresh temporary cache, so nothing is reused from an earlier run; an online bench
+//! pushes the frames through [`OnlineDynaPix`] one by one and also reports per-frame latency.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::input::Input;
+use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
+use crate::online::{OnlineDynaPix, RgbdFrame};
+use crate::profile::{Profile, StageProfiler, process_usage};
+use crate::progress::{Progress, Task};
+
+/// Per-frame latency of an online bench (milliseconds from `push` to its result).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Latency {
+    /// Mean.
+    pub mean_ms: f64,
+    /// Median.
+    pub p50_ms: f64,
+    /// 95th percentile.
+    pub p95_ms: f64,
+    /// Largest.
+    pub max_ms: f64,
+}
+
+impl Latency {
+    /// Statistics of `ms` (`None` when empty).
+    pub fn of(ms: &[f64]) -> Option<Self> {
+        if ms.is_empty() {
+            return None;
+        }
+        let mut s = ms.to_vec();
+        s.sort_by(f64::total_cmp);
+        let q = |f: f64| s[((s.len() - 1) as f64 * f).round() as usize];
+        Some(Self {
+            mean_ms: s.iter().sum::<f64>() / s.len() as f64,
+            p50_ms: q(0.5),
+            p95_ms: q(0.95),
+            max_ms: s[s.len() - 1],
+        })
+    }
+}
+
+/// What a bench measured.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BenchReport {
+    /// The sequence folder.
+    pub sequence: PathBuf,
+    /// Method name.
+    pub method: String,
+    /// `offline` or `online`.
+    pub schedule: &'static str,
+    /// Frames processed.
+    pub frames: usize,
+    /// Frames tracked by the final pass.
+    pub tracked: usize,
+    /// Image size.
+    pub width: u32,
+    /// Image size.
+    pub height: u32,
+    /// Worker threads (rayon).
+    pub threads: usize,
+    /// Wall-clock seconds of the whole run.
+    pub wall_seconds: f64,
+    /// CPU seconds (user + system, all threads) of the run (`None` where unknown).
+    pub cpu_seconds: Option<f64>,
+    /// Peak resident memory of the process (MiB) at the end of the run.
+    pub peak_rss_mib: Option<f64>,
+    /// Frames per wall-clock second.
+    pub fps: f64,
+    /// Per-frame latency (online only).
+    pub latency: Option<Latency>,
+    /// Phases and stages (empty unless the profiler is installed as a subscriber layer).
+    pub profile: Profile,
+}
+
+impl BenchReport {
+    /// The report as a Markdown table: one line per phase and stage with seconds, calls and
+    /// milliseconds per frame, then the totals.
+    pub fn to_markdown(&self) -> String {
+        let n = self.frames.max(1) as f64;
+        let mut s = format!(
+            "{} {} on {} ({} frames, {}×{}, {} threads)\n\n| | seconds | calls | ms/frame | share |\n|---|---:|---:|---:|---:|\n",
+            self.method,
+            self.schedule,
+            self.sequence.display(),
+            self.frames,
+            self.width,
+            self.height,
+            self.threads
+        );
+        for (kind, rows) in [
+            ("phases (wall)", &self.profile.phases),
+            ("stages (summed over threads)", &self.profile.stages),
+        ] {
+            if rows.is_empty() {
+                continue;
+            }
+            s.push_str(&format!("| **{kind}** | | | | |\n"));
+            for r in rows {
+                s.push_str(&format!(
+                    "| {} | {:.2} | {} | {:.1} | {:.0} % |\n",
+                    r.name,
+                    r.seconds,
+                    r.calls,
+                    r.seconds * 1e3 / n,
+                    100.0 * r.seconds / self.wall_seconds.max(1e-9)
+                ));
+            }
+        }
+        s.push_str(&format!(
+            "| **wall** | {:.2} | | {:.1} | 100 % |\n",
+            self.wall_seconds,
+            self.wall_seconds * 1e3 / n
+        ));
+        if let Some(c) = self.cpu_seconds {
+            s.push_str(&format!(
+                "| **CPU (process, all threads)** | {c:.2} | | {:.1} | |\n",
+                c * 1e3 / n
+            ));
+        }
+        s.push_str(&format!(
+            "\n{:.2} frames/s ({:.1} ms/frame wall), {} of {} frames tracked",
+            self.fps,
+            self.wall_seconds * 1e3 / n,
+            self.tracked,
+            self.frames
+        ));
+        if let Some(m) = self.peak_rss_mib {
+            s.push_str(&format!(", peak memory {m:.0} MiB"));
+        }
+        if let Some(l) = &self.latency {
+            s.push_str(&format!(
+                "\nlatency per frame: mean {:.1} ms, median {:.1}, p95 {:.1}, max {:.1}",
+                l.mean_ms, l.p50_ms, l.p95_ms, l.max_ms
+            ));
+        }
+        s.push('\n');
+        s
+    }
+}
+
+/// A fresh cache folder for one bench, removed when dropped.
+struct TempCache(PathBuf);
+
+impl TempCache {
+    fn new() -> Result<Self> {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or(0);
+        let dir = std::env::temp_dir().join(format!(
+            "dynapix-bench-{}-{nanos}",
+            std::process::id()
+        ));
+        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
+        Ok(Self(dir))
+    }
+}
+
+impl Drop for TempCache {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+struct Clock {
+    wall: Instant,
+    cpu: Option<f64>,
+}
+
+impl Clock {
+    fn start(profiler: &StageProfiler) -> Self {
+        profiler.start();
+        Self {
+            wall: Instant::now(),
+            cpu: process_usage().map(|u| u.cpu_seconds),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn report(
+        self,
+        profiler: &StageProfiler,
+        input: &Input,
+        config: &Config,
+        schedule: &'static str,
+        tracked: usize,
+        latency: Option<Latency>,
+    ) -> BenchReport {
+        let wall = self.wall.elapsed().as_secs_f64();
+        let profile = profiler.stop();
+        let usage = process_usage();
+        let frames = input.len();
+        let cam = input.camera.pinhole();
+        BenchReport {
+            sequence: input.sequence.dir.clone(),
+            method: config.method.name().to_string(),
+            schedule,
+            frames,
+            tracked,
+            width: cam.width,
+            height: cam.height,
+            threads: rayon::current_num_threads(),
+            wall_seconds: wall,
+            cpu_seconds: match (self.cpu, usage) {
+                (Some(a), Some(b)) => Some(b.cpu_seconds - a),
+                _ => None,
+            },
+            peak_rss_mib: usage.map(|u| u.peak_rss_mib),
+            fps: frames as f64 / wall.max(1e-9),
+            latency,
+            profile,
+        }
+    }
+}
+
+/// Runs `config` offline on `input` from scratch (a fresh temporary cache) and measures it.
+/// Returns the report and the run's output (for scoring).
+pub fn bench_offline(
+    config: &Config,
+    input: &Input,
+    profiler: &StageProfiler,
+    progress: &dyn Progress,
+) -> Result<(BenchReport, OfflineOutput)> {
+    let cache = TempCache::new()?;
+    let runner = OfflineRunner::new(
+        config,
+        input,
+        RunOptions {
+            cache_dir: Some(cache.0.clone()),
+            recompute_maps: true,
+            ..RunOptions::default()
+        },
+    )?;
+    let clock = Clock::start(profiler);
+    let out = runner.run(progress);
+    let tracked = out
+        .as_ref()
+        .ok()
+        .and_then(|o| o.final_pass())
+        .map_or(0, |p| p.stats.tracked);
+    let report = clock.report(profiler, input, config, "offline", tracked, None);
+    Ok((report, out?))
+}
+
+/// Pushes every frame of `input` through [`OnlineDynaPix`] with `config` (decoding included)
+/// and measures it. Returns the report and the camera-to-world pose of every tracked frame.
+pub fn bench_online(
+    config: &Config,
+    input: &Input,
+    profiler: &StageProfiler,
+    progress: &dyn Progress,
+) -> Result<(BenchReport, dynapix_io::Trajectory)> {
+    let mut online = OnlineDynaPix::new(&input.camera, config)?;
+    let clock = Clock::start(profiler);
+    let label = format!("{} online", config.method);
+    let task = Task::begin(progress, &label, input.len());
+    let mut latency = Vec::with_capacity(input.len());
+    let mut results = Vec::with_capacity(input.len());
+    for i in 0..input.len() {
+        let (rgb, depth) = input.load_rgbd(i)?;
+        let t = input.sequence.frames[i].t;
+        let started = Instant::now();
+        let r = online.push(RgbdFrame::new(t, rgb, depth));
+        latency.push(started.elapsed().as_secs_f64() * 1e3);
+        match r {
+            Ok(Some(r)) => results.push(r),
+            Ok(None) => {}
+            Err(e) => {
+                profiler.stop();
+                return Err(e);
+            }
+        }
+        task.step("");
+    }
+    results.extend(online.finish()?);
+    drop(task);
+    let tracked = results
+        .iter()
+        .filter(|r| r.status == dynapix_io::FrameStatus::Tracked)
+        .count();
+    let report = clock.report(
+        profiler,
+        input,
+        config,
+        "online",
+        tracked,
+        Latency::of(&latency),
+    );
+    let poses = results
+        .iter()
+        .filter_map(|r| r.pose_wc.map(|p| dynapix_io::StampedPose::new(r.t, p)))
+        .collect();
+    if results.len() != input.len() {
+        return Err(Error::Input(format!(
+            "online bench: {} results for {} frames",
+            results.len(),
+            input.len()
+        )));
+    }
+    Ok((report, dynapix_io::Trajectory::new(poses)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latency_quantiles() {
+        let l = Latency::of(&[4.0, 1.0, 3.0, 2.0, 100.0]).unwrap();
+        assert_eq!(l.p50_ms, 3.0);
+        assert_eq!(l.max_ms, 100.0);
+        assert_eq!(l.p95_ms, 100.0);
+        assert!((l.mean_ms - 22.0).abs() < 1e-12);
+        assert!(Latency::of(&[]).is_none());
+    }
+}

@@ -1,0 +1,299 @@
+//! Where the time of a run goes (`dynapix bench`).
+//!
+//! The pipeline marks its work with `tracing` spans: **stages** (target [`STAGE_TARGET`]:
+//! image decoding, ORB extraction, tracking, local mapping, loop closing, each flow, splatting,
+//! background, the cues, map I/O) and **phases** (target [`PHASE_TARGET`]: SLAM passes,
+//! rigidity maps, motion maps). A [`StageProfiler`] installed as a layer of the global
+//! subscriber sums, per span name, the wall time spent inside the span over every entry on
+//! every thread: for stages run per frame on parallel workers (flows, cues) that is their
+//! busy time summed over the workers; a stage that fans its own work out to worker threads
+//! (ORB extraction, bundle adjustment) counts its duration once. Phases are entered on the
+//! calling thread: their figure is the phase's duration. Time descheduled counts too, so
+//! measure on a quiet machine. Without a profiler the spans cost a callsite check.
+//!
+//! ```no_run
+//! use tracing_subscriber::layer::SubscriberExt;
+//! use tracing_subscriber::util::SubscriberInitExt;
+//!
+//! let profiler = dynapix::profile::StageProfiler::new();
+//! tracing_subscriber::registry().with(profiler.layer()).init();
+//! profiler.start();
+//! // ... run the pipeline ...
+//! for s in profiler.stop().stages {
+//!     println!("{}: {:.3} s in {} calls", s.name, s.seconds, s.calls);
+//! }
+//! ```
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use tracing::span::{Attributes, Id};
+use tracing::{Metadata, Subscriber};
+use tracing_subscriber::Layer;
+use tracing_subscriber::layer::{Context, Filter};
+use tracing_subscriber::registry::LookupSpan;
+
+/// Target of the spans that mark a stage of work (summed over threads).
+pub const STAGE_TARGET: &str = "dynapix::stage";
+/// Target of the spans that mark a phase of a run (wall time on the calling thread).
+pub const PHASE_TARGET: &str = "dynapix::phase";
+
+/// Time spent in one stage or phase.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StageTime {
+    /// The span name (e.g. `orb extraction`, `rigidity: flow`).
+    pub name: String,
+    /// Wall-clock seconds inside the span, summed over every entry on every thread.
+    pub seconds: f64,
+    /// Number of times the span was entered.
+    pub calls: u64,
+}
+
+/// What a profiler measured between [`StageProfiler::start`] and [`StageProfiler::stop`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Profile {
+    /// Phases, by name.
+    pub phases: Vec<StageTime>,
+    /// Stages, by name.
+    pub stages: Vec<StageTime>,
+}
+
+#[derive(Default)]
+struct Table {
+    /// (is a phase, name) → (wall time, entries).
+    rows: BTreeMap<(bool, &'static str), (Duration, u64)>,
+}
+
+#[derive(Default)]
+struct Inner {
+    enabled: AtomicBool,
+    table: Mutex<Table>,
+}
+
+/// Sums the time spent in the pipeline's stage and phase spans (see the module
+/// documentation). Cheap to clone: clones share one table.
+#[derive(Clone, Default)]
+pub struct StageProfiler {
+    inner: Arc<Inner>,
+}
+
+/// When a span was entered (kept in the span's extensions).
+struct Entered(Instant);
+
+impl StageProfiler {
+    /// A profiler that measures nothing until [`StageProfiler::start`].
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The layer to add to the global subscriber (filtered to the stage and phase spans, so
+    /// it leaves every other layer's filtering alone).
+    pub fn layer<S>(&self) -> impl Layer<S> + Send + Sync + 'static
+    where
+        S: Subscriber + for<'a> LookupSpan<'a>,
+    {
+        self.clone().with_filter(ProfiledSpans)
+    }
+
+    /// Clears the table and starts measuring.
+    pub fn start(&self) {
+        if let Ok(mut t) = self.inner.table.lock() {
+            t.rows.clear();
+        }
+        self.inner.enabled.store(true, Ordering::SeqCst);
+    }
+
+    /// Stops measuring and returns what was measured since [`StageProfiler::start`].
+    pub fn stop(&self) -> Profile {
+        self.inner.enabled.store(false, Ordering::SeqCst);
+        let rows = match self.inner.table.lock() {
+            Ok(mut t) => std::mem::take(&mut t.rows),
+            Err(_) => BTreeMap::new(),
+        };
+        let mut out = Profile::default();
+        for ((phase, name), (d, calls)) in rows {
+            let row = StageTime {
+                name: name.to_string(),
+                seconds: d.as_secs_f64(),
+                calls,
+            };
+            if phase {
+                out.phases.push(row);
+            } else {
+                out.stages.push(row);
+            }
+        }
+        out
+    }
+
+    fn enabled(&self) -> bool {
+        self.inner.enabled.load(Ordering::Relaxed)
+    }
+}
+
+/// The per-layer filter of [`StageProfiler::layer`]: stage and phase spans only.
+struct ProfiledSpans;
+
+fn is_profiled(meta: &Metadata<'_>) -> bool {
+    meta.is_span() && (meta.target() == STAGE_TARGET || meta.target() == PHASE_TARGET)
+}
+
+impl<S> Filter<S> for ProfiledSpans {
+    fn enabled(&self, meta: &Metadata<'_>, _: &Context<'_, S>) -> bool {
+        is_profiled(meta)
+    }
+
+    fn callsite_enabled(
+        &self,
+        meta: &'static Metadata<'static>,
+    ) -> tracing::subscriber::Interest {
+        if is_profiled(meta) {
+            tracing::subscriber::Interest::always()
+        } else {
+            tracing::subscriber::Interest::never()
+        }
+    }
+}
+
+impl<S> Layer<S> for StageProfiler
+where
+    S: Subscriber + for<'a> LookupSpan<'a>,
+{
+    fn on_new_span(&self, _: &Attributes<'_>, _: &Id, _: Context<'_, S>) {}
+
+    fn on_enter(&self, id: &Id, ctx: Context<'_, S>) {
+        if !self.enabled() {
+            return;
+        }
+        if let Some(span) = ctx.span(id) {
+            span.extensions_mut().replace(Entered(Instant::now()));
+        }
+    }
+
+    fn on_exit(&self, id: &Id, ctx: Context<'_, S>) {
+        let Some(span) = ctx.span(id) else {
+            return;
+        };
+        let Some(Entered(at)) = span.extensions_mut().remove::<Entered>() else {
+            return;
+        };
+        if !self.enabled() {
+            return;
+        }
+        let meta = span.metadata();
+        let key = (meta.target() == PHASE_TARGET, meta.name());
+        let wall = at.elapsed();
+        if let Ok(mut t) = self.inner.table.lock() {
+            let row = t.rows.entry(key).or_default();
+            row.0 += wall;
+            row.1 += 1;
+        }
+    }
+}
+
+/// CPU time (user + system) and peak resident memory of this process so far.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ProcessUsage {
+    /// User + system CPU seconds of every thread of the process.
+    pub cpu_seconds: f64,
+    /// Peak resident set size (MiB) since the process started.
+    pub peak_rss_mib: f64,
+}
+
+/// The process's CPU time and peak memory (`None` where the platform does not say).
+pub fn process_usage() -> Option<ProcessUsage> {
+    #[cfg(unix)]
+    {
+        // SAFETY: getrusage writes into the zeroed struct we own and reads nothing else.
+        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: `u` is a valid, writable rusage.
+        if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
+            return None;
+        }
+        let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+        // ru_maxrss is in KiB on Linux (bytes on macOS).
+        let rss_kib = if cfg!(target_os = "macos") {
+            u.ru_maxrss as f64 / 1024.0
+        } else {
+            u.ru_maxrss as f64
+        };
+        Some(ProcessUsage {
+            cpu_seconds: tv(u.ru_utime) + tv(u.ru_stime),
+            peak_rss_mib: rss_kib / 1024.0,
+        })
+    }
+    #[cfg(not(unix))]
+    {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tracing_subscriber::layer::SubscriberExt;
+
+    fn busy(ms: u64) {
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_millis(ms) {
+            std::hint::spin_loop();
+        }
+    }
+
+    #[test]
+    fn stages_sum_over_entries_and_threads_phases_are_separate() {
+        let profiler = StageProfiler::new();
+        let subscriber = tracing_subscriber::registry().with(profiler.layer());
+        let dispatch = tracing::Dispatch::new(subscriber);
+        // Not measured: before start.
+        tracing::dispatcher::with_default(&dispatch, || {
+            let _s = tracing::info_span!(target: "dynapix::stage", "a").entered();
+            busy(5);
+        });
+        profiler.start();
+        std::thread::scope(|scope| {
+            for _ in 0..2 {
+                let d = dispatch.clone();
+                scope.spawn(move || {
+                    tracing::dispatcher::with_default(&d, || {
+                        let _p = tracing::info_span!(target: "dynapix::phase", "p").entered();
+                        for _ in 0..3 {
+                            let _s = tracing::info_span!(target: "dynapix::stage", "a").entered();
+                            busy(4);
+                        }
+                        // Other targets are not measured.
+                        let _o = tracing::info_span!(target: "elsewhere", "b").entered();
+                        busy(2);
+                    });
+                });
+            }
+        });
+        let p = profiler.stop();
+        assert_eq!(p.stages.len(), 1, "{p:?}");
+        assert_eq!(p.stages[0].name, "a");
+        assert_eq!(p.stages[0].calls, 6);
+        assert!(p.stages[0].seconds >= 0.024, "{p:?}");
+        assert_eq!(p.phases.len(), 1);
+        assert_eq!(p.phases[0].calls, 2);
+        assert!(p.phases[0].seconds >= p.stages[0].seconds, "{p:?}");
+        // Stopped: nothing more is measured.
+        tracing::dispatcher::with_default(&dispatch, || {
+            let _s = tracing::info_span!(target: "dynapix::stage", "a").entered();
+        });
+        assert_eq!(profiler.stop(), Profile::default());
+    }
+
+    #[test]
+    fn process_usage_is_plausible() {
+        let before = process_usage();
+        busy(20);
+        let after = process_usage();
+        if let (Some(a), Some(b)) = (before, after) {
+            assert!(b.cpu_seconds >= a.cpu_seconds + 0.01, "{a:?} {b:?}");
+            assert!(b.peak_rss_mib > 1.0, "{b:?}");
+        }
+    }
+}
