@@ -58,8 +58,14 @@ pub struct RigidityParams {
     pub min_depth: f64,
     /// Fewer correspondences than this give no fit (at least 3).
     pub min_correspondences: usize,
-    /// Number of 3-point samples drawn by RANSAC (degenerate samples are drawn, then skipped).
+    /// Largest number of 3-point samples drawn by RANSAC (degenerate samples are drawn, then
+    /// skipped).
     pub ransac_iterations: usize,
+    /// RANSAC stops once, with this probability, at least one drawn sample was all inliers
+    /// of the best motion so far (the standard adaptive count `ln(1 − p) / ln(1 − ŵ³)` for
+    /// inlier fraction ŵ), checked after every batch of [`RANSAC_BATCH`] samples so the result
+    /// does not depend on the thread count; 1 draws all `ransac_iterations` samples.
+    pub ransac_confidence: f64,
     /// Seed of the sampling.
     pub seed: u64,
     /// A sample is degenerate when `|(a1 − a0) × (a2 − a0)|` (m²) is below this.
@@ -103,6 +109,7 @@ impl Default for RigidityParams {
             min_depth: 0.1,
             min_correspondences: 20,
             ransac_iterations: 500,
+            ransac_confidence: 0.999,
             seed: 0,
             min_sample_area: 1e-3,
             chi2: 27.0,
@@ -173,6 +180,12 @@ impl RigidityParams {
         }
         if self.ransac_iterations == 0 {
             return Err(invalid("ransac_iterations", "must be at least 1"));
+        }
+        if !(self.ransac_confidence > 0.0 && self.ransac_confidence <= 1.0) {
+            return Err(invalid(
+                "ransac_confidence",
+                format!("must be in (0, 1], got {}", self.ransac_confidence),
+            ));
         }
         finite_nonneg("min_sample_area", self.min_sample_area)?;
         positive("chi2", self.chi2)?;
@@ -262,6 +275,8 @@ pub struct RigidFit {
     pub inliers: usize,
     /// Correspondences the fit saw.
     pub correspondences: usize,
+    /// RANSAC samples drawn (degenerate ones included).
+    pub samples: usize,
 }
 
 impl RigidFit {
@@ -509,8 +524,31 @@ fn inlier_pairs(
         .unzip()
 }
 
+/// Samples drawn between two checks of RANSAC's adaptive stopping rule.
+pub const RANSAC_BATCH: usize = 16;
+
+/// Samples RANSAC needs so that, with probability `confidence`, one of them is all inliers
+/// when a fraction `inlier_fraction` of the correspondences are inliers (3-point samples).
+/// `usize::MAX` when that cannot be reached (no inliers, or confidence 1).
+pub fn adaptive_samples(inlier_fraction: f64, confidence: f64) -> usize {
+    let all_inliers = inlier_fraction.clamp(0.0, 1.0).powi(3);
+    if confidence >= 1.0 || all_inliers <= 0.0 {
+        return usize::MAX;
+    }
+    if all_inliers >= 1.0 {
+        return 1;
+    }
+    let k = (1.0 - confidence).ln() / (1.0 - all_inliers).ln();
+    if k.is_finite() && k >= 0.0 {
+        (k.ceil() as usize).max(1)
+    } else {
+        usize::MAX
+    }
+}
+
 /// RANSAC for the rigid motion `B ≈ R·A + t` of `corr` (see the module documentation):
-/// [`RigidityParams::ransac_iterations`] seeded 3-point samples, degenerate ones skipped,
+/// up to [`RigidityParams::ransac_iterations`] seeded 3-point samples (fewer once
+/// [`RigidityParams::ransac_confidence`] is reached), degenerate ones skipped,
 /// each hypothesis scored by its number of inliers (`r² < chi2`, [`residual_squared`]; the
 /// first best hypothesis wins ties), then [`RigidityParams::refine_rounds`] rounds of Kabsch
 /// on the inliers. `cam` gives the focal lengths of the residual.
@@ -550,48 +588,58 @@ pub fn fit_rigid_motion(
         })
         .collect();
 
-    // Samples are drawn in sequence from the seeded generator; only the scoring is parallel.
+    // Samples are drawn in sequence from the seeded generator, in fixed batches; only the
+    // scoring within a batch is parallel, and the first best sample wins ties, so the result
+    // is the same on every thread count.
     let mut rng = ChaCha8Rng::seed_from_u64(params.seed);
-    // (The reservation is capped: the iteration count is user data.)
-    let mut hypotheses = Vec::with_capacity(params.ransac_iterations.min(4096));
-    for _ in 0..params.ransac_iterations {
-        let idx = rand::seq::index::sample(&mut rng, n, 3);
-        let a = [
-            corr.source[idx.index(0)],
-            corr.source[idx.index(1)],
-            corr.source[idx.index(2)],
-        ];
-        let area = (a[1] - a[0]).cross(&(a[2] - a[0])).norm();
-        // NaN areas (non-finite input) are degenerate too.
-        if area.is_nan() || area < params.min_sample_area {
-            continue;
+    let mut best: Option<(Se3, usize)> = None;
+    let mut drawn = 0;
+    let mut needed = params.ransac_iterations;
+    while drawn < needed {
+        let end = (drawn + RANSAC_BATCH).min(needed);
+        let mut hypotheses = Vec::with_capacity(end - drawn);
+        for _ in drawn..end {
+            let idx = rand::seq::index::sample(&mut rng, n, 3);
+            let a = [
+                corr.source[idx.index(0)],
+                corr.source[idx.index(1)],
+                corr.source[idx.index(2)],
+            ];
+            let area = (a[1] - a[0]).cross(&(a[2] - a[0])).norm();
+            // NaN areas (non-finite input) are degenerate too.
+            if area.is_nan() || area < params.min_sample_area {
+                continue;
+            }
+            let b = [
+                corr.target[idx.index(0)],
+                corr.target[idx.index(1)],
+                corr.target[idx.index(2)],
+            ];
+            if let Some(m) = kabsch(&a, &b) {
+                hypotheses.push(m);
+            }
         }
-        let b = [
-            corr.target[idx.index(0)],
-            corr.target[idx.index(1)],
-            corr.target[idx.index(2)],
-        ];
-        if let Some(m) = kabsch(&a, &b) {
-            hypotheses.push(m);
+        drawn = end;
+        let scores: Vec<usize> = hypotheses
+            .par_iter()
+            .map(|m| count_inliers(m, &corr.source, &targets, &model, params.chi2))
+            .collect();
+        for (m, s) in hypotheses.into_iter().zip(scores) {
+            if best.as_ref().is_none_or(|(_, b)| s > *b) {
+                best = Some((m, s));
+            }
+        }
+        if let Some((_, s)) = &best {
+            needed = adaptive_samples(*s as f64 / n as f64, params.ransac_confidence)
+                .min(params.ransac_iterations);
         }
     }
-    let scores: Vec<usize> = hypotheses
-        .par_iter()
-        .map(|m| count_inliers(m, &corr.source, &targets, &model, params.chi2))
-        .collect();
-    let mut best: Option<(usize, usize)> = None;
-    for (k, &s) in scores.iter().enumerate() {
-        if best.is_none_or(|(_, b)| s > b) {
-            best = Some((k, s));
-        }
-    }
-    let Some((k, _)) = best else {
+    let Some((mut motion, _)) = best else {
         return Err(RigidFitError::NoHypothesis {
             samples: params.ransac_iterations,
         }
         .into());
     };
-    let mut motion = hypotheses[k];
     for _ in 0..params.refine_rounds {
         let (a, b) = inlier_pairs(&motion, corr, &targets, &model, params.chi2);
         match kabsch(&a, &b) {
@@ -605,6 +653,7 @@ pub fn fit_rigid_motion(
         motion,
         inliers,
         correspondences: n,
+        samples: drawn,
     })
 }
 
@@ -903,6 +952,55 @@ mod tests {
         let fit2 = fit_rigid_motion(&corr, &cam, &other).unwrap();
         let (dr2, dt2) = distance(&fit2.motion, &fit.motion);
         assert!(dr2 < 1e-9 && dt2 < 1e-9, "{dr2} {dt2}");
+    }
+
+    #[test]
+    fn adaptive_sample_count_follows_the_ransac_formula() {
+        // ln(0.001) / ln(1 − 0.5³) = 51.7 → 52 samples at half inliers.
+        assert_eq!(adaptive_samples(0.5, 0.999), 52);
+        // More inliers, fewer samples; more confidence, more samples.
+        assert!(adaptive_samples(0.8, 0.999) < adaptive_samples(0.6, 0.999));
+        assert!(adaptive_samples(0.6, 0.99) < adaptive_samples(0.6, 0.999));
+        assert_eq!(adaptive_samples(1.0, 0.999), 1);
+        assert_eq!(adaptive_samples(0.0, 0.999), usize::MAX);
+        assert_eq!(adaptive_samples(0.7, 1.0), usize::MAX);
+    }
+
+    #[test]
+    fn adaptive_ransac_stops_early_with_the_same_motion() {
+        let cam = PinholeCamera::tum_fr3();
+        let camera = se3([0.01, -0.02, 0.005], [0.03, -0.01, 0.02]);
+        let mover = se3([0.0; 3], [0.06, -0.03, 0.04]) * camera;
+        let all = RigidityParams {
+            ransac_confidence: 1.0,
+            ..Default::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let (mut src, mut dst) = scene_pairs(&mut rng, 700, &camera, &cam, &all);
+        let (ms, md) = scene_pairs(&mut rng, 300, &mover, &cam, &all);
+        src.extend(ms);
+        dst.extend(md);
+        let corr = Correspondences {
+            pixels: vec![[0, 0]; src.len()],
+            source: src,
+            target: dst,
+        };
+        let full = fit_rigid_motion(&corr, &cam, &all).unwrap();
+        assert_eq!(full.samples, all.ransac_iterations);
+        let adaptive = fit_rigid_motion(&corr, &cam, &RigidityParams::default()).unwrap();
+        // 70 % inliers: ln(0.001) / ln(1 − 0.343) = 16.4 → the first batch (16) plus one.
+        assert!(adaptive.samples <= 2 * RANSAC_BATCH, "{}", adaptive.samples);
+        let (dr, dt) = distance(&adaptive.motion, &full.motion);
+        assert!(dr.to_degrees() < 0.01 && dt < 5e-4, "{dr} rad, {dt} m");
+        assert_eq!(adaptive.inliers, full.inliers);
+        // Bad values are refused.
+        for c in [0.0, 1.5, f64::NAN] {
+            let p = RigidityParams {
+                ransac_confidence: c,
+                ..Default::default()
+            };
+            assert!(fit_rigid_motion(&corr, &cam, &p).is_err(), "{c}");
+        }
     }
 
     #[test]
