@@ -162,9 +162,8 @@ pub struct DepthView<'a> {
     pub t_cs: Se3,
 }
 
-/// Viewing rays of the working pixels: ray of input pixel `(i·f, j·f)`.
+/// Viewing rays of the working pixels, row by row: ray of input pixel `(i·f, j·f)`.
 struct Rays {
-    w: u32,
     rays: Vec<[f64; 2]>,
 }
 
@@ -182,11 +181,7 @@ impl Rays {
                 rays.push(r);
             }
         }
-        Self { w, rays }
-    }
-
-    fn at(&self, i: u32, j: u32) -> [f64; 2] {
-        self.rays[(j * self.w + i) as usize]
+        Self { rays }
     }
 }
 
@@ -202,46 +197,48 @@ pub struct StaticDepth {
 
 /// Forward-splats `view` into the current camera at working resolution, keeping the nearest
 /// surface per pixel (`INFINITY` = nothing).
-fn splat_nearest(cam: &PinholeCamera, rays: &Rays, view: &DepthView<'_>, out: &mut [f32]) {
+fn splat_nearest(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
     let f = view.depth.factor as f64;
-    let d = &view.depth.depth;
-    let (w, h) = d.dimensions();
-    let table = pixel_rays(cam);
-    for j in 0..h {
-        for i in 0..w {
-            let z = d.get_pixel(i, j).0[0];
-            if z.is_nan() || z <= 0.0 {
-                continue;
-            }
-            let r = rays.at(i, j);
-            if !r[0].is_finite() {
-                continue;
-            }
-            let z = z as f64;
-            let p = view.t_cs * Point3::new(r[0] * z, r[1] * z, z);
-            if p.z <= 0.0 {
-                continue;
-            }
-            let uv = match &table {
-                Some(t) => t.project(&p),
-                None => cam.project(&p),
-            };
-            let Some(uv) = uv else { continue };
-            let (u, v) = ((uv.x / f).round(), (uv.y / f).round());
-            if !(u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64) {
-                continue;
-            }
-            let k = v as usize * w as usize + u as usize;
-            let zf = p.z as f32;
-            if zf < out[k] {
-                out[k] = zf;
-            }
+    let d = view.depth.depth.as_raw();
+    let (w, h) = view.depth.depth.dimensions();
+    let (wf, hf) = (w as f64, h as f64);
+    let r = *view.t_cs.rotation.to_rotation_matrix().matrix();
+    let t = view.t_cs.translation.vector;
+    for (&z, ray) in d.iter().zip(&rays.rays) {
+        if z.is_nan() || z <= 0.0 || !ray[0].is_finite() {
+            continue;
+        }
+        let z = z as f64;
+        let p = r * nalgebra::Vector3::new(ray[0] * z, ray[1] * z, z) + t;
+        if p.z <= 0.0 {
+            continue;
+        }
+        let p = Point3::from(p);
+        let uv = match table {
+            Some(t) => t.project(&p),
+            None => cam.project(&p),
+        };
+        let Some(uv) = uv else { continue };
+        // Nearest working pixel, exactly as `f64::round` (half away from zero) followed by
+        // the bounds check, without the libm call: inside the image means x + 0.5 in (0, w).
+        let (u, v) = (uv.x / f + 0.5, uv.y / f + 0.5);
+        if !(u > 0.0 && v > 0.0 && u < wf && v < hf) {
+            continue;
+        }
+        let idx = v as usize * w as usize + u as usize;
+        let zf = p.z as f32;
+        if zf < out[idx] {
+            out[idx] = zf;
         }
     }
 }
 
-/// Static depth of the current view from neighbour views (see the module docs). All views
-/// must have the same working size.
 pub fn static_depth(
     cam: &PinholeCamera,
     views: &[DepthView<'_>],
@@ -268,11 +265,12 @@ pub fn static_depth(
     let (w, h) = size;
     let n = (w * h) as usize;
     let rays = Rays::new(cam, factor, w, h);
+    let table = pixel_rays(cam);
     let splats: Vec<Vec<f32>> = views
         .par_iter()
         .map(|v| {
             let mut out = vec![f32::INFINITY; n];
-            splat_nearest(cam, &rays, v, &mut out);
+            splat_nearest(cam, table.as_deref(), &rays, v, &mut out);
             out
         })
         .collect();

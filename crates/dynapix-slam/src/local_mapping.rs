@@ -137,18 +137,31 @@ impl LocalMapper {
             (k.bow, k.feat) = bow_vectors(v, &k.descriptors, self.params.bow_group_depth);
         }
         let t0 = std::time::Instant::now();
-        self.insert_keyframe(map, kf);
-        stats.culled_points = self.cull_points(map, kf);
+        {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: insert and cull points").entered();
+            self.insert_keyframe(map, kf);
+            stats.culled_points = self.cull_points(map, kf);
+        }
         let t1 = std::time::Instant::now();
-        stats.new_points = self.triangulate(map, kf);
+        {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: triangulation").entered();
+            stats.new_points = self.triangulate(map, kf);
+        }
         let t2 = std::time::Instant::now();
-        stats.fused = self.search_in_neighbors(map, kf);
+        {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: fusion").entered();
+            stats.fused = self.search_in_neighbors(map, kf);
+        }
         let t3 = std::time::Instant::now();
         if map.num_keyframes() > self.params.ba_min_keyframes {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: local BA").entered();
             stats.ba_outliers = self.local_bundle_adjustment(map, kf);
         }
         let t4 = std::time::Instant::now();
-        stats.culled_keyframes = self.cull_keyframes(map, kf);
+        {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: cull keyframes").entered();
+            stats.culled_keyframes = self.cull_keyframes(map, kf);
+        }
         tracing::debug!(
             insert_ms = (t1 - t0).as_secs_f64() * 1e3,
             triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
