@@ -69,21 +69,37 @@ fn bench_reports_each_stage_of_the_method_that_ran() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = synth(tmp.path(), 24);
 
-    let (orb, text) = bench(&seq, &tmp.path().join("orb.json"), &["--method", "orbslam2"]);
+    let (orb, text) = bench(
+        &seq,
+        &tmp.path().join("orb.json"),
+        &["--method", "orbslam2"],
+    );
     assert_eq!(orb["frames"], 24);
     assert_eq!(orb["schedule"], "offline");
     assert!(orb["ate_rmse_m"].as_f64().is_some(), "{orb}");
     assert!(orb["wall_seconds"].as_f64().unwrap() > 0.0);
     assert!(orb["fps"].as_f64().unwrap() > 0.0);
     let stages = names(&orb, "stages");
-    for s in ["decode images", "orb extraction", "tracking", "local mapping"] {
+    for s in [
+        "decode images",
+        "orb extraction",
+        "tracking",
+        "local mapping",
+    ] {
         assert!(stages.contains(&s.to_string()), "{s} missing: {stages:?}");
     }
     // ORB-SLAM2 computes no motion maps.
-    assert!(!stages.iter().any(|s| s.contains("rigidity") || s.contains("geometric")));
+    assert!(
+        !stages
+            .iter()
+            .any(|s| s.contains("rigidity") || s.contains("geometric"))
+    );
     assert_eq!(calls(&orb, "stages", "orb extraction"), 24);
     assert_eq!(calls(&orb, "phases", "SLAM passes"), 1);
-    assert!(text.contains("frames/s") && text.contains("orb extraction"), "{text}");
+    assert!(
+        text.contains("frames/s") && text.contains("orb extraction"),
+        "{text}"
+    );
 
     let (dp, _) = bench(&seq, &tmp.path().join("dp.json"), &["--method", "dynapix"]);
     let stages = names(&dp, "stages");

@@ -104,7 +104,8 @@ pub fn motion_probability(
     let (d, m) = rayon::join(
         || -> Result<FloatImage, MotionError> {
             if params.use_movable {
-                let _stage = tracing::info_span!(target: "dynapix::stage", "paper: movable term").entered();
+                let _stage =
+                    tracing::info_span!(target: "dynapix::stage", "paper: movable term").entered();
                 Ok(movable(cur.rgb, cur.background, cur.depth, &params.movable)?.d)
             } else {
                 Ok(ones())

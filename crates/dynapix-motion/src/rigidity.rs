@@ -780,10 +780,12 @@ pub fn rigidity_probability_with(
         .par_iter()
         .map(|nb| {
             let f = {
-                let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: flow").entered();
+                let _stage =
+                    tracing::info_span!(target: "dynapix::stage", "rigidity: flow").entered();
                 flow.flow(cur.gray, nb.gray)?
             };
-            let fit_stage = tracing::info_span!(target: "dynapix::stage", "rigidity: fit").entered();
+            let fit_stage =
+                tracing::info_span!(target: "dynapix::stage", "rigidity: fit").entered();
             let corr = correspondences(cur.depth, nb.depth, &f, &rays, params)?;
             let fit = match fit_rigid_motion(&corr, cam, params) {
                 Ok(fit) if fit.inlier_fraction() < params.min_inlier_fraction => {
@@ -797,7 +799,8 @@ pub fn rigidity_probability_with(
                 Err(e) => return Err(e),
             };
             drop(fit_stage);
-            let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: residual").entered();
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "rigidity: residual").entered();
             let residual = match &fit {
                 Ok(fit) => Some(dense_residual(
                     cur.depth,

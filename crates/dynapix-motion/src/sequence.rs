@@ -334,7 +334,8 @@ impl SequenceMotion<'_> {
                         }
                     })
                     .collect();
-                let _stage = tracing::info_span!(target: "dynapix::stage", "paper: background").entered();
+                let _stage =
+                    tracing::info_span!(target: "dynapix::stage", "paper: background").entered();
                 let b = reconstruct_background(
                     &cur.rgb,
                     &cur.depth,

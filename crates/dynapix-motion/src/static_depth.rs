@@ -244,6 +244,7 @@ pub fn static_depth(
     views: &[DepthView<'_>],
     params: &StaticDepthParams,
 ) -> Result<StaticDepth, MotionError> {
+    let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: static depth").entered();
     params.validate()?;
     let Some(first) = views.first() else {
         return Err(MotionError::InvalidParam {
@@ -383,6 +384,7 @@ pub fn geometric_term(
     sd: &StaticDepth,
     params: &StaticDepthParams,
 ) -> Result<FloatImage, MotionError> {
+    let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: term").entered();
     params.validate()?;
     check_size(
         "static depth",
@@ -469,11 +471,7 @@ pub fn geometric_frame(
     if views.is_empty() {
         return Ok(FloatImage::new(cam.width, cam.height));
     }
-    let sd = {
-        let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: static depth").entered();
-        static_depth(cam, &views, params)?
-    };
-    let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: term").entered();
+    let sd = static_depth(cam, &views, params)?;
     geometric_term(cur, &sd, params)
 }
 

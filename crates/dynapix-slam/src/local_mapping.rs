@@ -138,13 +138,16 @@ impl LocalMapper {
         }
         let t0 = std::time::Instant::now();
         {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: insert and cull points").entered();
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "mapping: insert and cull points")
+                    .entered();
             self.insert_keyframe(map, kf);
             stats.culled_points = self.cull_points(map, kf);
         }
         let t1 = std::time::Instant::now();
         {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: triangulation").entered();
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "mapping: triangulation").entered();
             stats.new_points = self.triangulate(map, kf);
         }
         let t2 = std::time::Instant::now();
@@ -154,12 +157,14 @@ impl LocalMapper {
         }
         let t3 = std::time::Instant::now();
         if map.num_keyframes() > self.params.ba_min_keyframes {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: local BA").entered();
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "mapping: local BA").entered();
             stats.ba_outliers = self.local_bundle_adjustment(map, kf);
         }
         let t4 = std::time::Instant::now();
         {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "mapping: cull keyframes").entered();
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "mapping: cull keyframes").entered();
             stats.culled_keyframes = self.cull_keyframes(map, kf);
         }
         tracing::debug!(

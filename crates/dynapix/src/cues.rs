@@ -286,7 +286,8 @@ impl GeometricInput {
         let depths = (0..n)
             .into_par_iter()
             .map(|i| {
-                let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
+                let _stage =
+                    tracing::info_span!(target: "dynapix::stage", "decode images").entered();
                 let d = dynapix_io::images::read_depth(&input.sequence.frames[i].depth, factor)?;
                 Ok(WorkingDepth::new(&d, params))
             })

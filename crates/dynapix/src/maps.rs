@@ -354,7 +354,8 @@ impl<'a> MapJob<'a> {
                             .folder
                             .map_path(self.input, i)
                             .ok_or("frame without a file name")?;
-                        let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
+                        let _stage =
+                            tracing::info_span!(target: "dynapix::stage", "read maps").entered();
                         dynapix_io::images::read_motion_probability(path)?.into_image()
                     }
                     None => rig_job.frame(i)?,

@@ -146,10 +146,7 @@ impl<S> Filter<S> for ProfiledSpans {
         is_profiled(meta)
     }
 
-    fn callsite_enabled(
-        &self,
-        meta: &'static Metadata<'static>,
-    ) -> tracing::subscriber::Interest {
+    fn callsite_enabled(&self, meta: &'static Metadata<'static>) -> tracing::subscriber::Interest {
         if is_profiled(meta) {
             tracing::subscriber::Interest::always()
         } else {
