@@ -284,8 +284,7 @@ impl Input {
         let size_from_frames = size_missing(&missing);
         if size_from_frames {
             let first = &sequence.info(0)?.rgb;
-            let (w, h) = image::image_dimensions(first)
-                .map_err(|e| Error::file(first, format!("cannot read the image size: {e}")))?;
+            let (w, h) = dynapix_io::images::image_size(first)?;
             settings.width = w;
             settings.height = h;
         }

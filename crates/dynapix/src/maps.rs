@@ -274,7 +274,7 @@ impl<'a> MapJob<'a> {
                         "frame {i} ({name}): {what} {}: missing",
                         expected.display()
                     )),
-                    Some(path) => match image::image_dimensions(path) {
+                    Some(path) => match dynapix_io::images::image_size(path) {
                         Ok(d) if d == size => {}
                         Ok(d) => p.push(format!(
                             "frame {i} ({name}): {what} {} is {}×{}, expected {}×{}",
@@ -284,10 +284,7 @@ impl<'a> MapJob<'a> {
                             size.0,
                             size.1
                         )),
-                        Err(e) => p.push(format!(
-                            "frame {i} ({name}): {what} {}: {e}",
-                            path.display()
-                        )),
+                        Err(e) => p.push(format!("frame {i} ({name}): {what} {e}")),
                     },
                 };
                 check(Some(&f.rgb), "rgb", &f.rgb);

@@ -297,3 +297,37 @@ pub fn check_tracked(seq: &Path, tracked: usize, allow: bool) -> anyhow::Result<
         )
     }
 }
+
+/// The message of `e` and its causes, joined by ": ", each cause once: a cause whose text the
+/// message before it already ends with (an error that prints its source, like
+/// `path: No such file or directory (os error 2)`) is not repeated.
+pub fn report(e: &anyhow::Error) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if text.is_empty() || parts.last().is_some_and(|p| p.ends_with(&text)) {
+            continue;
+        }
+        parts.push(text);
+    }
+    parts.join(": ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_names_every_cause_once() {
+        let os = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let os_text = os.to_string();
+        let io = dynapix_io::IoError::io("seq/rgb/1.png", os);
+        let e = anyhow::Error::new(io).context("cannot read the sequence seq");
+        let r = report(&e);
+        assert_eq!(r.matches(&os_text).count(), 1, "{r}");
+        assert!(r.starts_with("cannot read the sequence seq: seq/rgb/1.png"), "{r}");
+        // Causes that add something are kept.
+        let e = anyhow::anyhow!("inner").context("outer");
+        assert_eq!(report(&e), "outer: inner");
+    }
+}

@@ -171,7 +171,8 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     task: "runs",
                     message: &msg,
                 });
-                r.err().map(|e| format!("{}: {e:#}", dir.display()))
+                r.err()
+                    .map(|e| format!("{}: {}", dir.display(), super::common::report(&e)))
             })
             .collect()
     });

@@ -225,7 +225,7 @@ fn evaluate_into(
         && ev.as_ref().is_some_and(|r| r.result.ate_rmse_m.is_some())
         && let Err(e) = plots(seq_dir, &traj, dir)
     {
-        tracing::warn!("plots of {}: {e:#}", dir.display());
+        tracing::warn!("plots of {}: {}", dir.display(), super::common::report(&e));
     }
     if let Some(r) = &ev {
         stats["ate_rmse_m"] = json!(r.result.ate_rmse_m);
