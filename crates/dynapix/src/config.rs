@@ -57,6 +57,10 @@ pub struct SequenceConfig {
     pub max_diff: f64,
     /// Use only the first N frames.
     pub max_frames: Option<usize>,
+    /// A frame whose rgb or depth file cannot be used (missing, truncated, undecodable, of
+    /// another size) is skipped: recorded lost, no motion map, SLAM goes on with the next
+    /// frame, and the run lists it. Off: the run stops at that frame with an error naming it.
+    pub skip_bad_frames: bool,
 }
 
 impl Default for SequenceConfig {
@@ -65,6 +69,7 @@ impl Default for SequenceConfig {
             pairing: Pairing::Nearest,
             max_diff: dynapix_io::tum::DEFAULT_MAX_DIFF,
             max_frames: None,
+            skip_bad_frames: false,
         }
     }
 }

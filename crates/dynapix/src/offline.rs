@@ -202,7 +202,7 @@ impl<'a> OfflineRunner<'a> {
                 RigidityJob::new(self.input, c.motion.rigidity.clone()).record(),
             ),
         };
-        json!({
+        let mut r = json!({
             "kind": c.passes.first,
             "version": SLAM_PASS_VERSION,
             "frames_hash": self.input.frames_hash(),
@@ -213,7 +213,11 @@ impl<'a> OfflineRunner<'a> {
             "method": c.method.name(),
             "vocabulary": c.slam.vocabulary,
             "seed": c.slam.seed,
-        })
+        });
+        if let Some(b) = self.input.bad_frames_record() {
+            r["bad_frames_skipped"] = b;
+        }
+        r
     }
 
     /// The first pass: given by the caller, found in the cache, or run now (and cached).
@@ -434,6 +438,12 @@ impl<'a> OfflineRunner<'a> {
             passes,
             record,
         })
+    }
+
+    /// The record fields every run has (the body of `run.json` before any pass; a caller
+    /// whose run stopped writes this).
+    pub fn record(&self) -> Value {
+        self.base_record()
     }
 
     /// The record fields every run has.

@@ -204,6 +204,84 @@ impl Progress for Bars {
     }
 }
 
+/// Files that mark a folder as an earlier result set of `slam` or `run`: such a folder (or an
+/// empty one) may be replaced by a run; any other is refused.
+pub const RESULT_MARKERS: &[&str] = &["run.json", "slam.json", "trajectory.txt", "status.txt"];
+
+/// True when `p` lies inside (or is) the folder `dir`, both resolved as far as they exist.
+fn inside(p: &Path, dir: &Path) -> bool {
+    let resolve = |p: &Path| {
+        p.canonicalize()
+            .or_else(|_| std::path::absolute(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    };
+    dir.exists() && resolve(p).starts_with(resolve(dir))
+}
+
+/// Checks `--out` up front, before any work: its parent is writable, it is new, empty or an
+/// earlier result set ([`RESULT_MARKERS`]), and none of `keep` (what → path: the sequence, the
+/// cache, a map to load) lies inside it, since a run replaces the folder as a whole.
+pub fn check_out(out: &Path, keep: &[(&str, &Path)]) -> anyhow::Result<()> {
+    dynapix_io::output::check_output_folder(out, RESULT_MARKERS)?;
+    for (what, p) in keep {
+        if inside(p, out) {
+            anyhow::bail!(
+                "{what} {} lies inside --out {}, which a run replaces as a whole; keep it \
+                 outside the output folder",
+                p.display(),
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The first library error in the chain of `e`.
+fn library_error(e: &anyhow::Error) -> Option<&dynapix::Error> {
+    e.chain().find_map(|c| c.downcast_ref::<dynapix::Error>())
+}
+
+/// What a pass had computed when `e` stopped it.
+pub fn partial_pass(e: &anyhow::Error) -> Option<&PassOutput> {
+    library_error(e).and_then(dynapix::Error::partial_pass)
+}
+
+/// The record fields of a run that did not complete: `complete: false`, the error, and the
+/// frame that stopped it when a frame did.
+pub fn incomplete(e: &anyhow::Error) -> serde_json::Value {
+    serde_json::json!({
+        "complete": false,
+        "error": report(e),
+        "failed_frame": library_error(e).and_then(dynapix::Error::bad_frame),
+    })
+}
+
+/// Adds the keys of the object `extra` to the object `record`.
+pub fn merge(record: &mut serde_json::Value, extra: serde_json::Value) {
+    if let (serde_json::Value::Object(r), serde_json::Value::Object(x)) = (record, extra) {
+        r.extend(x);
+    }
+}
+
+/// The summary words about skipped frames: `, 2 bad frame(s) skipped (frames 3, 9)`, or
+/// nothing when no frame was skipped and skipping is off.
+pub fn skipped_note(skipped: &[dynapix::BadFrame], skipping: bool) -> String {
+    if skipped.is_empty() && !skipping {
+        return String::new();
+    }
+    let list: Vec<String> = skipped.iter().take(10).map(|b| b.index.to_string()).collect();
+    let more = if skipped.len() > 10 { ", …" } else { "" };
+    if skipped.is_empty() {
+        ", no bad frame skipped".into()
+    } else {
+        format!(
+            ", {} bad frame(s) skipped (frames {}{more})",
+            skipped.len(),
+            list.join(", ")
+        )
+    }
+}
+
 /// Writes what every SLAM pass leaves in `out`: `trajectory.txt` (TUM, the current estimate
 /// of every tracked frame), `status.txt`, `keyframes.txt` and `loops.txt`.
 pub fn write_pass(out: &Path, pass: &PassOutput) -> anyhow::Result<()> {
