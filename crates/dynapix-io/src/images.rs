@@ -501,7 +501,9 @@ mod tests {
     #[test]
     fn images_are_decoded_by_content_not_by_name() {
         let dir = tempfile::tempdir().unwrap();
-        let img = RgbImage::from_fn(16, 8, |x, y| image::Rgb([(x * 15) as u8, (y * 30) as u8, 7]));
+        let img = RgbImage::from_fn(16, 8, |x, y| {
+            image::Rgb([(x * 15) as u8, (y * 30) as u8, 7])
+        });
         let mut jpeg = Vec::new();
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
             .encode_image(&img)

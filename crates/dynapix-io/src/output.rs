@@ -30,11 +30,11 @@ pub fn check_writable_dir(dir: &Path) -> Result<()> {
     } else {
         dir
     };
-    fs::create_dir_all(shown).map_err(|e| IoError::invalid(shown, format!("cannot create the folder: {e}")))?;
+    fs::create_dir_all(shown)
+        .map_err(|e| IoError::invalid(shown, format!("cannot create the folder: {e}")))?;
     let probe = shown.join(format!(".dynapix-probe-{}", std::process::id()));
-    fs::write(&probe, b"").map_err(|e| {
-        IoError::invalid(shown, format!("cannot write into the folder: {e}"))
-    })?;
+    fs::write(&probe, b"")
+        .map_err(|e| IoError::invalid(shown, format!("cannot write into the folder: {e}")))?;
     fs::remove_file(&probe).map_err(|e| IoError::io(&probe, e))?;
     Ok(())
 }
@@ -43,7 +43,9 @@ pub fn check_writable_dir(dir: &Path) -> Result<()> {
 fn split(out: &Path) -> Result<(PathBuf, std::ffi::OsString)> {
     let name = out
         .file_name()
-        .ok_or_else(|| IoError::invalid(out, "an output folder needs a name (not `.`, `..` or `/`)"))?
+        .ok_or_else(|| {
+            IoError::invalid(out, "an output folder needs a name (not `.`, `..` or `/`)")
+        })?
         .to_os_string();
     let parent = out.parent().map(Path::to_path_buf).unwrap_or_default();
     Ok((parent, name))
@@ -243,7 +245,9 @@ mod tests {
         let foreign = tmp.path().join("photos");
         fs::create_dir(&foreign).unwrap();
         fs::write(foreign.join("cat.jpg"), "x").unwrap();
-        let e = OutputFolder::begin(&foreign, MARKERS).unwrap_err().to_string();
+        let e = OutputFolder::begin(&foreign, MARKERS)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("photos") && e.contains("run.json"), "{e}");
         assert!(foreign.join("cat.jpg").exists());
         let file = tmp.path().join("f.txt");

@@ -392,7 +392,8 @@ impl Input {
     /// pass, motion maps); `None` when there is none, so records without them keep their keys.
     pub fn bad_frames_record(&self) -> Option<serde_json::Value> {
         let bad = self.bad_frames();
-        (!bad.is_empty()).then(|| serde_json::json!(bad.iter().map(|b| b.index).collect::<Vec<_>>()))
+        (!bad.is_empty())
+            .then(|| serde_json::json!(bad.iter().map(|b| b.index).collect::<Vec<_>>()))
     }
 
     /// The file name of frame `i`'s probability map or mask: the rgb file name with `.png`.

@@ -208,13 +208,27 @@ impl Progress for Bars {
 /// empty one) may be replaced by a run; any other is refused.
 pub const RESULT_MARKERS: &[&str] = &["run.json", "slam.json", "trajectory.txt", "status.txt"];
 
-/// True when `p` lies inside (or is) the folder `dir`, both resolved as far as they exist.
+/// `p` with its longest existing ancestor resolved (links, `..`) and the rest appended.
+fn resolve(p: &Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut rest = Vec::new();
+    let mut cur = abs.as_path();
+    loop {
+        if let Ok(c) = cur.canonicalize() {
+            return rest.iter().rev().fold(c, |acc: PathBuf, n| acc.join(n));
+        }
+        match (cur.parent(), cur.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                cur = parent;
+            }
+            _ => return abs,
+        }
+    }
+}
+
+/// True when `p` lies inside (or is) the existing folder `dir`.
 fn inside(p: &Path, dir: &Path) -> bool {
-    let resolve = |p: &Path| {
-        p.canonicalize()
-            .or_else(|_| std::path::absolute(p))
-            .unwrap_or_else(|_| p.to_path_buf())
-    };
     dir.exists() && resolve(p).starts_with(resolve(dir))
 }
 
@@ -269,7 +283,11 @@ pub fn skipped_note(skipped: &[dynapix::BadFrame], skipping: bool) -> String {
     if skipped.is_empty() && !skipping {
         return String::new();
     }
-    let list: Vec<String> = skipped.iter().take(10).map(|b| b.index.to_string()).collect();
+    let list: Vec<String> = skipped
+        .iter()
+        .take(10)
+        .map(|b| b.index.to_string())
+        .collect();
     let more = if skipped.len() > 10 { ", …" } else { "" };
     if skipped.is_empty() {
         ", no bad frame skipped".into()
@@ -403,7 +421,10 @@ mod tests {
         let e = anyhow::Error::new(io).context("cannot read the sequence seq");
         let r = report(&e);
         assert_eq!(r.matches(&os_text).count(), 1, "{r}");
-        assert!(r.starts_with("cannot read the sequence seq: seq/rgb/1.png"), "{r}");
+        assert!(
+            r.starts_with("cannot read the sequence seq: seq/rgb/1.png"),
+            "{r}"
+        );
         // Causes that add something are kept.
         let e = anyhow::anyhow!("inner").context("outer");
         assert_eq!(report(&e), "outer: inner");
