@@ -287,7 +287,7 @@ fn write_earlier_passes(
 }
 
 /// The folders and files a run must not replace: the sequence, the cache, DynaPix+ masks.
-fn kept_paths<'a>(input: &'a Input, runner: &OfflineRunner<'_>) -> Vec<(&'static str, PathBuf)> {
+fn kept_paths(input: &Input, runner: &OfflineRunner<'_>) -> Vec<(&'static str, PathBuf)> {
     let mut keep = vec![("the sequence", input.sequence.dir.clone())];
     keep.push(("the cache", runner.cache_dir()));
     if runner.config().method.needs_masks() {
