@@ -188,6 +188,7 @@ impl<'a> OfflineRunner<'a> {
         if !wanted {
             return Ok(None);
         }
+        let _ = self.input.bad_frames();
         let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
         cached_rigidity(&job, &self.cache_dir(), "rigidity maps", progress).map(Some)
     }
@@ -353,6 +354,8 @@ impl<'a> OfflineRunner<'a> {
         if self.config.method.terms().is_none() {
             return Ok((None, None));
         }
+        // Bad frames are found once, here, before any parallel work asks for them.
+        let _ = self.input.bad_frames();
         if let Some(m) = self.sequence_maps()? {
             return Ok((None, Some(m)));
         }
