@@ -380,9 +380,11 @@ fn execute_into(
             }
             outcome.prob_dir = run.final_maps().map(|m| m.folder.dir.clone());
             outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
-            let before = std::mem::take(record);
+            // The run's record replaces the record before the run (the runner's own fields).
+            let (runs, seed) = (record["runs"].take(), record["seed"].take());
             *record = run.record.clone();
-            merge(record, before);
+            record["runs"] = runs;
+            record["seed"] = seed;
             let earlier = write_earlier_passes(spec.input, out, &spec.out, &run)?;
             if !earlier.is_empty() {
                 record["earlier_passes"] = json!(earlier);
