@@ -85,7 +85,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", cmd::common::report(&e));
             std::process::ExitCode::FAILURE
         }
     }

@@ -250,6 +250,18 @@ pub fn write_table(dir: &Path, table: &PaperTable) -> Result<Vec<PathBuf>> {
 mod tests {
     use super::*;
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+
+        /// Reference stamps of any text are stamps or an error naming the file.
+        #[test]
+        fn reference_stamps_never_panic(text in proptest::prelude::any::<String>()) {
+            if let Err(e) = parse_reference_stamps(&text, Path::new("rgb.txt")) {
+                proptest::prop_assert!(e.to_string().contains("rgb.txt"), "{}", e);
+            }
+        }
+    }
+
     #[test]
     fn a_run_reports_its_floor_and_serialises_flat() {
         let dir = tempfile::tempdir().expect("tmp");

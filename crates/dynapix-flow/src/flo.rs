@@ -118,6 +118,31 @@ pub fn write_flo(path: impl AsRef<Path>, flow: &FlowField) -> Result<(), FlowErr
 mod tests {
     use super::*;
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+
+        /// Arbitrary bytes, bare or behind a valid magic and size, are a flow or an error
+        /// naming the file, never a panic.
+        #[test]
+        fn parse_never_panics(
+            bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..120),
+            w in -2i32..6,
+            h in -2i32..6,
+            with_header in proptest::prelude::any::<bool>(),
+        ) {
+            let mut data = Vec::new();
+            if with_header {
+                data.extend_from_slice(&FLO_MAGIC.to_le_bytes());
+                data.extend_from_slice(&w.to_le_bytes());
+                data.extend_from_slice(&h.to_le_bytes());
+            }
+            data.extend_from_slice(&bytes);
+            if let Err(e) = parse_flo(&data, Path::new("x.flo")) {
+                proptest::prop_assert!(e.to_string().contains("x.flo"), "{}", e);
+            }
+        }
+    }
+
     fn sample() -> FlowField {
         let mut f = FlowField::zeros(5, 3);
         for (i, d) in f.data.iter_mut().enumerate() {

@@ -55,6 +55,22 @@ impl IoError {
         }
     }
 
+    /// The file concerned.
+    pub fn path(&self) -> &std::path::Path {
+        match self {
+            Self::Io { path, .. } | Self::Parse { path, .. } | Self::Invalid { path, .. } => path,
+        }
+    }
+
+    /// What is wrong, without the file name (with the line for a parse error).
+    pub fn reason(&self) -> String {
+        match self {
+            Self::Io { source, .. } => source.to_string(),
+            Self::Parse { line, message, .. } => format!("line {line}: {message}"),
+            Self::Invalid { message, .. } => message.clone(),
+        }
+    }
+
     /// A whole-file content error.
     pub fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Self::Invalid {

@@ -27,15 +27,53 @@ pub type Gray16Image = ImageBuffer<Luma<u16>, Vec<u16>>;
 /// Scale of the stored probability weight: `stored = trunc((1 − P)·1000)`.
 pub const PROB_PNG_SCALE: f32 = 1000.0;
 
-fn decode(path: &Path) -> Result<DynamicImage> {
-    let reader = image::ImageReader::open(path)
-        .map_err(|e| IoError::io(path, e))?
+/// Opens `path` for decoding with its format told by its content (the magic bytes), not by
+/// its name: a JPEG file named `.png` decodes, and a file that is no image fails the same way
+/// whatever its extension.
+fn open_sniffed(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+    // Not `ImageReader::open`: it takes the format from the extension, which the content
+    // would then only override when recognised.
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let reader = image::ImageReader::new(std::io::BufReader::new(file))
         .with_guessed_format()
         .map_err(|e| IoError::io(path, e))?;
-    reader.decode().map_err(|e| match e {
+    if reader.format().is_none() {
+        return Err(IoError::invalid(
+            path,
+            "cannot decode image: the content is neither PNG nor JPEG",
+        ));
+    }
+    Ok(reader)
+}
+
+fn image_error(path: &Path, e: image::ImageError) -> IoError {
+    match e {
         image::ImageError::IoError(io) => IoError::io(path, io),
         other => IoError::invalid(path, format!("cannot decode image: {other}")),
-    })
+    }
+}
+
+/// Decodes the image file `path`, its format told by its content: the one image decoder of
+/// dynapix (every command reads images through it, so a file decodes everywhere or fails
+/// everywhere with the same message). Errors name the file.
+pub fn decode_image(path: impl AsRef<Path>) -> Result<DynamicImage> {
+    let path = path.as_ref();
+    open_sniffed(path)?
+        .decode()
+        .map_err(|e| image_error(path, e))
+}
+
+/// The width and height of the image file `path`, read from its header with the format told
+/// by its content (like [`decode_image`]); the pixels are not decoded.
+pub fn image_size(path: impl AsRef<Path>) -> Result<(u32, u32)> {
+    let path = path.as_ref();
+    open_sniffed(path)?
+        .into_dimensions()
+        .map_err(|e| image_error(path, e))
+}
+
+fn decode(path: &Path) -> Result<DynamicImage> {
+    decode_image(path)
 }
 
 fn describe(img: &DynamicImage) -> String {
@@ -54,6 +92,22 @@ pub fn read_rgb(path: impl AsRef<Path>) -> Result<RgbImage> {
         other => Err(IoError::invalid(
             path,
             format!("expected an 8-bit colour image, got {}", describe(&other)),
+        )),
+    }
+}
+
+/// Reads an 8-bit image (grey, grey + alpha, colour or colour + alpha) as grey, with the
+/// ITU-R 601 luma of the `image` crate; 16-bit or float images are an error.
+pub fn read_gray(path: impl AsRef<Path>) -> Result<GrayImage> {
+    let path = path.as_ref();
+    match decode(path)? {
+        DynamicImage::ImageLuma8(img) => Ok(img),
+        img @ (DynamicImage::ImageRgb8(_)
+        | DynamicImage::ImageRgba8(_)
+        | DynamicImage::ImageLumaA8(_)) => Ok(img.to_luma8()),
+        other => Err(IoError::invalid(
+            path,
+            format!("expected an 8-bit image, got {}", describe(&other)),
         )),
     }
 }
@@ -442,6 +496,52 @@ mod tests {
         assert!(e.contains("junk.png"), "{e}");
         let e = read_rgb(dir.path().join("missing.png")).unwrap_err();
         assert!(matches!(e, IoError::Io { .. }) && e.to_string().contains("missing.png"));
+    }
+
+    #[test]
+    fn images_are_decoded_by_content_not_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = RgbImage::from_fn(16, 8, |x, y| {
+            image::Rgb([(x * 15) as u8, (y * 30) as u8, 7])
+        });
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+            .encode_image(&img)
+            .unwrap();
+        // JPEG bytes under a .png name (and PNG bytes under .jpg) decode everywhere.
+        let named_png = dir.path().join("frame.png");
+        std::fs::write(&named_png, &jpeg).unwrap();
+        assert_eq!(read_rgb(&named_png).unwrap().dimensions(), (16, 8));
+        assert_eq!(read_gray(&named_png).unwrap().dimensions(), (16, 8));
+        assert_eq!(image_size(&named_png).unwrap(), (16, 8));
+        let named_jpg = dir.path().join("frame.jpg");
+        write_rgb(&named_jpg, &img).unwrap();
+        assert_eq!(read_rgb(&named_jpg).unwrap(), img);
+        // Content that is no image fails with one message whatever the name says.
+        let msgs: Vec<String> = ["a.png", "a.jpg", "a.txt"]
+            .iter()
+            .map(|n| {
+                let p = dir.path().join(n);
+                std::fs::write(&p, b"# timestamp filename\n").unwrap();
+                let e = read_rgb(&p).unwrap_err().to_string();
+                assert_eq!(image_size(&p).unwrap_err().to_string(), e);
+                e.replace(&p.display().to_string(), "FILE")
+            })
+            .collect();
+        assert!(msgs.iter().all(|m| m == &msgs[0]), "{msgs:?}");
+        assert!(msgs[0].contains("neither PNG nor JPEG"), "{}", msgs[0]);
+        // A truncated PNG names the file.
+        let full = dir.path().join("full.png");
+        write_rgb(&full, &img).unwrap();
+        let bytes = std::fs::read(&full).unwrap();
+        let cut = dir.path().join("cut.png");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let e = read_rgb(&cut).unwrap_err().to_string();
+        assert!(e.contains("cut.png"), "{e}");
+        // 16-bit images are not grey frames.
+        let d16 = dir.path().join("d16.png");
+        write_gray16(&d16, &Gray16Image::new(4, 4)).unwrap();
+        assert!(read_gray(&d16).unwrap_err().to_string().contains("8-bit"));
     }
 
     #[test]

@@ -20,6 +20,8 @@
 //! - [`weights`]: [`MotionProbability`] P and [`StaticWeights`] w = 1 − P as distinct types,
 //!   with the one 16-bit codec of the reference `prob/*.png` files.
 //! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
+//! - [`output`]: [`OutputFolder`], a command's result set written beside its output folder
+//!   and swapped in as a whole.
 
 #![warn(missing_docs)]
 
@@ -28,6 +30,7 @@ pub mod datasets;
 pub mod error;
 pub mod ground_truth;
 pub mod images;
+pub mod output;
 pub mod sequence;
 pub mod settings;
 #[cfg(test)]
@@ -44,6 +47,7 @@ pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
 };
 pub use images::{DepthImage, Gray16Image, ProbMap};
+pub use output::OutputFolder;
 pub use sequence::{
     FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions, SequenceWriter,
 };

@@ -54,6 +54,12 @@ pub trait FrameLoader: Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// False for a frame that is not to be used (e.g. its files are known to be broken): it
+    /// is never loaded, and its neighbours do without it as if it lay beyond the sequence.
+    fn available(&self, i: usize) -> bool {
+        let _ = i;
+        true
+    }
     /// The images of frame `i`.
     fn frame(&self, i: usize) -> Result<RgbdImages, BoxError>;
     /// The given static background of frame `i` (a rendered or inpainted `background/`
@@ -195,7 +201,14 @@ impl SequenceMotion<'_> {
                 self.poses.len()
             )));
         }
-        let in_range = |j: i64| (j >= 0 && (j as usize) < n).then_some(j as usize);
+        let in_range = |j: i64| {
+            (j >= 0 && (j as usize) < n && self.loader.available(j as usize)).then_some(j as usize)
+        };
+        if let Some(&bad) = frames.iter().find(|&&i| !self.loader.available(i)) {
+            return Err(SequenceError::Input(format!(
+                "frame {bad} requested, but the loader marks it unavailable"
+            )));
+        }
         let moving_offsets: Vec<i64> = if self.params.use_moving {
             self.params.offsets.clone()
         } else {
@@ -324,7 +337,7 @@ impl SequenceMotion<'_> {
                 let sources: Vec<Source> = offsets
                     .iter()
                     .map(|&o| i as i64 + o)
-                    .filter(|&j| (0..n).contains(&j))
+                    .filter(|&j| (0..n).contains(&j) && self.loader.available(j as usize))
                     .map(|j| {
                         let j = j as usize;
                         Source {
@@ -445,6 +458,51 @@ mod tests {
         assert_eq!(maps[&2], direct.p);
         // The mover is found.
         assert!(direct.p.iter().any(|&p| p > 0.5));
+    }
+
+    /// [`Frames`] with frame 2 unavailable.
+    struct WithoutTwo(Frames);
+
+    impl FrameLoader for WithoutTwo {
+        fn len(&self) -> usize {
+            self.0.len()
+        }
+        fn available(&self, i: usize) -> bool {
+            i != 2
+        }
+        fn frame(&self, i: usize) -> Result<RgbdImages, BoxError> {
+            assert_ne!(i, 2, "an unavailable frame was loaded");
+            self.0.frame(i)
+        }
+        fn background(&self, i: usize, f: &RgbdImages) -> Result<StaticBackground, BoxError> {
+            self.0.background(i, f)
+        }
+    }
+
+    #[test]
+    fn unavailable_frames_are_never_loaded_and_their_neighbours_do_without() {
+        let f = WithoutTwo(frames());
+        let flow = BlockFlow { radius: 5, half: 2 };
+        let params = MotionParams::new(Variant::Tum, Mode::Paper);
+        for backgrounds in [
+            Backgrounds::Given,
+            Backgrounds::Reconstruct(ReconstructParams::default()),
+        ] {
+            let seq = SequenceMotion {
+                loader: &f,
+                poses: &f.0.poses,
+                camera: &f.0.cam,
+                flow: &flow,
+                params: &params,
+                backgrounds: &backgrounds,
+            };
+            let mut done = Vec::new();
+            seq.run(&[0, 1, 3, 4], |m| Ok(m.index), |_, i| done.push(i))
+                .unwrap();
+            assert_eq!(done, vec![0, 1, 3, 4]);
+            let e = seq.run(&[2], |_| Ok(()), |_, _| {}).unwrap_err();
+            assert!(matches!(e, SequenceError::Input(_)), "{e}");
+        }
     }
 
     #[test]

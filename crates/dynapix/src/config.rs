@@ -57,6 +57,10 @@ pub struct SequenceConfig {
     pub max_diff: f64,
     /// Use only the first N frames.
     pub max_frames: Option<usize>,
+    /// A frame whose rgb or depth file cannot be used (missing, truncated, undecodable, of
+    /// another size) is skipped: recorded lost, no motion map, SLAM goes on with the next
+    /// frame, and the run lists it. Off: the run stops at that frame with an error naming it.
+    pub skip_bad_frames: bool,
 }
 
 impl Default for SequenceConfig {
@@ -65,6 +69,7 @@ impl Default for SequenceConfig {
             pairing: Pairing::Nearest,
             max_diff: dynapix_io::tum::DEFAULT_MAX_DIFF,
             max_frames: None,
+            skip_bad_frames: false,
         }
     }
 }
@@ -862,10 +867,80 @@ mod tests {
         c.slam.params.map.dynapix.update =
             dynapix_slam::dynapix::ProbUpdate::Ema { alpha: f32::NAN };
         assert!(c.validate().is_err());
+        let c = Config::from_yaml_str("sequence: {skip_bad_frames: true}\n").unwrap();
+        assert!(c.sequence.skip_bad_frames && !Config::default().sequence.skip_bad_frames);
         let e = Config::from_yaml_str("slam:\n  params: {static_features_min_weight: 2.0}\n")
             .unwrap_err()
             .to_string();
         assert!(e.contains("static_features_min_weight"), "{e}");
+    }
+
+    /// YAML made of the keys and values a configuration has, so documents are often
+    /// almost valid.
+    fn near_yaml() -> impl proptest::strategy::Strategy<Value = String> {
+        use proptest::prelude::*;
+        proptest::collection::vec(
+            prop_oneof![
+                Just("mode: "),
+                Just("paper"),
+                Just("reference"),
+                Just("method: "),
+                Just("dynapix"),
+                Just("orbslam2"),
+                Just("sequence:"),
+                Just("motion:"),
+                Just("slam:"),
+                Just("passes:"),
+                Just("online:"),
+                Just("params:"),
+                Just("cues:"),
+                Just("max_frames: "),
+                Just("skip_bad_frames: "),
+                Just("weighted: "),
+                Just("window: "),
+                Just("offsets: "),
+                Just("past_offsets: "),
+                Just("max_diff: "),
+                Just("true"),
+                Just("0"),
+                Just("-1"),
+                Just("1e400"),
+                Just(".nan"),
+                Just("~"),
+                Just("[0, 1]"),
+                Just("{"),
+                Just("}"),
+                Just("["),
+                Just("]"),
+                Just(":"),
+                Just(","),
+                Just("\n"),
+                Just("  "),
+                Just("- "),
+                Just("\""),
+                Just("&a "),
+                Just("*a"),
+                Just("!!str "),
+                Just("#"),
+            ],
+            0..40,
+        )
+        .prop_map(|v| v.concat())
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+
+        /// A configuration document of any text is a configuration or an error, never a panic.
+        #[test]
+        fn config_parsers_never_panic(near in near_yaml(), any in proptest::prelude::any::<String>()) {
+            for text in [&near, &any] {
+                if let Ok(c) = Config::from_yaml_str(text) {
+                    proptest::prop_assert!(c.validate().is_ok());
+                }
+                let _ = Config::from_json_str(text);
+            }
+        }
     }
 
     #[test]

@@ -72,7 +72,7 @@ impl<'a> RigidityJob<'a> {
     /// The `config` document of the maps' `motion.json`: everything that determines them.
     pub fn record(&self) -> Value {
         let seq = &self.input.sequence;
-        json!({
+        let mut r = json!({
             "cue": "rigidity",
             "version": RIGIDITY_MAPS_VERSION,
             "frames": seq.len(),
@@ -83,7 +83,11 @@ impl<'a> RigidityJob<'a> {
             "poses": "none (pose-free cue)",
             "params": self.params,
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
-        })
+        });
+        if let Some(b) = self.input.bad_frames_record() {
+            r["bad_frames_skipped"] = b;
+        }
+        r
     }
 
     /// The cache key: a hash of [`RigidityJob::record`].
@@ -96,7 +100,7 @@ impl<'a> RigidityJob<'a> {
         Ok(Arc::new((to_gray(&rgb), depth)))
     }
 
-    /// The neighbours of frame `i` that exist.
+    /// The neighbours of frame `i` that exist and are not bad frames.
     fn neighbours(&self, i: usize) -> Vec<(i64, usize)> {
         let n = self.input.len() as i64;
         self.params
@@ -104,7 +108,7 @@ impl<'a> RigidityJob<'a> {
             .iter()
             .filter_map(|&o| {
                 let j = i as i64 + o;
-                (0..n).contains(&j).then_some((o, j as usize))
+                ((0..n).contains(&j) && !self.input.is_bad(j as usize)).then_some((o, j as usize))
             })
             .collect()
     }
@@ -167,7 +171,8 @@ impl<'a> RigidityJob<'a> {
     }
 
     /// Computes every frame in order, in parallel chunks (each frame's images are decoded
-    /// once per chunk that needs them); `each` gets every frame's P in frame order.
+    /// once per chunk that needs them); `each` gets every frame's P in frame order. Bad
+    /// frames ([`Input::bad_frames`]) get no map.
     pub fn run(
         &self,
         progress: &dyn Progress,
@@ -181,10 +186,10 @@ impl<'a> RigidityJob<'a> {
         let cam = self.input.camera.pinhole();
         let flow = DisFlow::with_preset(self.params.flow_preset);
         let chunk = 4 * rayon::current_num_threads().max(1);
-        let task = Task::begin(progress, label, n);
+        let all: Vec<usize> = (0..n).filter(|&i| !self.input.is_bad(i)).collect();
+        let task = Task::begin(progress, label, all.len());
         let mut loaded: HashMap<usize, GrayDepth> = HashMap::new();
         let mut stats = RigidityStats::default();
-        let all: Vec<usize> = (0..n).collect();
         for frames in all.chunks(chunk) {
             let mut need: Vec<usize> = frames
                 .iter()
@@ -199,11 +204,15 @@ impl<'a> RigidityJob<'a> {
                 .into_iter()
                 .filter(|k| !loaded.contains_key(k))
                 .collect();
-            let new = missing
+            // Collected before the first error is taken, so the error is the same every run.
+            let new: Vec<Result<(usize, GrayDepth)>> = missing
                 .par_iter()
                 .map(|&k| Ok((k, self.load(k)?)))
-                .collect::<Result<Vec<_>>>()?;
-            loaded.extend(new);
+                .collect();
+            for r in new {
+                let (k, g) = r?;
+                loaded.insert(k, g);
+            }
             let out = frames
                 .par_iter()
                 .map(|&i| self.frame_with(i, &loaded, &cam, &flow))
@@ -240,7 +249,7 @@ pub fn cached_rigidity(
             &config,
             "complete",
             json!({
-                "frames_computed": job.input.len(),
+                "frames_computed": job.input.len() - job.input.bad_frames().len(),
                 "seconds": started.elapsed().as_secs_f64(),
                 "threads": rayon::current_num_threads(),
                 "fits": stats,
@@ -270,7 +279,8 @@ pub struct GeometricInput {
 }
 
 impl GeometricInput {
-    /// Reads every frame's depth (in parallel) and takes the poses.
+    /// Reads every frame's depth (in parallel) and takes the poses; a bad frame
+    /// ([`Input::bad_frames`]) is left out (no depth, no pose).
     pub fn load(input: &Input, poses: &FramePoses, params: &StaticDepthParams) -> Result<Self> {
         params
             .validate()
@@ -283,19 +293,30 @@ impl GeometricInput {
             )));
         }
         let factor = input.sequence.depth_factor;
+        let cam = input.camera.pinhole();
         let depths = (0..n)
             .into_par_iter()
             .map(|i| {
+                if input.is_bad(i) {
+                    return Ok(WorkingDepth::new(
+                        &FloatImage::new(cam.width, cam.height),
+                        params,
+                    ));
+                }
                 let _stage =
                     tracing::info_span!(target: "dynapix::stage", "decode images").entered();
                 let d = dynapix_io::images::read_depth(&input.sequence.frames[i].depth, factor)?;
                 Ok(WorkingDepth::new(&d, params))
             })
+            .collect::<Vec<Result<_>>>()
+            .into_iter()
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {
             depths,
             stamps: input.timestamps(),
-            poses: poses.poses.iter().copied().map(Some).collect(),
+            poses: (poses.poses.iter().enumerate())
+                .map(|(i, p)| (!input.is_bad(i)).then_some(*p))
+                .collect(),
             camera: input.camera.pinhole(),
             params: params.clone(),
         })

@@ -2,6 +2,46 @@
 
 use std::path::PathBuf;
 
+use serde::Serialize;
+
+/// A frame of a sequence whose files cannot be used: a missing, truncated or undecodable rgb
+/// or depth image, rgb and depth of different sizes, or a size other than the camera's.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BadFrame {
+    /// Index of the frame in the sequence (0-based).
+    pub index: usize,
+    /// Frame time (s).
+    pub timestamp: f64,
+    /// The file at fault.
+    pub file: PathBuf,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl std::fmt::Display for BadFrame {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "frame {} (t = {:.6}): {}: {}",
+            self.index,
+            self.timestamp,
+            self.file.display(),
+            self.reason
+        )
+    }
+}
+
+/// A SLAM pass that stopped part-way, with what it had computed.
+#[derive(Debug)]
+pub struct StoppedPass {
+    /// The pass (its progress label, e.g. `first pass (rigidity)`).
+    pub label: String,
+    /// Why it stopped.
+    pub error: Error,
+    /// The pass up to the frame before the one that stopped it.
+    pub partial: crate::slam::PassOutput,
+}
+
 /// Everything that can go wrong in a DynaPix run.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -39,6 +79,12 @@ pub enum Error {
         /// What went wrong.
         source: dynapix_slam::vocab::VocabError,
     },
+    /// A frame whose files cannot be used (see [`BadFrame`]).
+    #[error("{0}")]
+    Frame(BadFrame),
+    /// A SLAM pass stopped part-way; what it had computed is kept.
+    #[error("{}: {}", .0.label, .0.error)]
+    Stopped(Box<StoppedPass>),
     /// A file that is not one of the formats above (`motion.json`, run records).
     #[error("{}: {message}", path.display())]
     File {
@@ -50,6 +96,27 @@ pub enum Error {
 }
 
 impl Error {
+    /// The frame that caused this error, when it is a [`BadFrame`] (also inside a stopped
+    /// pass or the motion maps).
+    pub fn bad_frame(&self) -> Option<&BadFrame> {
+        match self {
+            Error::Frame(b) => Some(b),
+            Error::Stopped(s) => s.error.bad_frame(),
+            Error::Motion(dynapix_motion::SequenceError::Load { source, .. }) => {
+                source.downcast_ref::<Error>().and_then(Error::bad_frame)
+            }
+            _ => None,
+        }
+    }
+
+    /// What a SLAM pass had computed when it stopped (see [`Error::Stopped`]).
+    pub fn partial_pass(&self) -> Option<&crate::slam::PassOutput> {
+        match self {
+            Error::Stopped(s) => Some(&s.partial),
+            _ => None,
+        }
+    }
+
     /// A configuration error without a file.
     pub(crate) fn config(message: impl Into<String>) -> Self {
         Error::Config {

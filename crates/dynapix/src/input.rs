@@ -5,6 +5,7 @@
 //! `rgbd_bonn_*`) or the GRADE layout, else an error that says how to give it (design §6).
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
 use dynapix_io::{Sequence, SequenceOptions, Settings};
@@ -14,7 +15,7 @@ use image::RgbImage;
 use serde::Serialize;
 
 use crate::config::SequenceConfig;
-use crate::error::{Error, Result};
+use crate::error::{BadFrame, Error, Result};
 use crate::hash::Fnv64;
 
 /// Camera presets (ORB-SLAM2 settings files).
@@ -177,6 +178,11 @@ pub struct Input {
     pub sequence: Sequence,
     /// The camera.
     pub camera: Camera,
+    /// Frames whose files cannot be used are skipped instead of stopping the run
+    /// ([`SequenceConfig::skip_bad_frames`]).
+    pub skip_bad_frames: bool,
+    /// The bad frames, found on first use when skipping.
+    bad: OnceLock<Vec<BadFrame>>,
 }
 
 /// Reads a settings file leniently (missing keys take the TUM values).
@@ -284,8 +290,7 @@ impl Input {
         let size_from_frames = size_missing(&missing);
         if size_from_frames {
             let first = &sequence.info(0)?.rgb;
-            let (w, h) = image::image_dimensions(first)
-                .map_err(|e| Error::file(first, format!("cannot read the image size: {e}")))?;
+            let (w, h) = dynapix_io::images::image_size(first)?;
             settings.width = w;
             settings.height = h;
         }
@@ -303,6 +308,8 @@ impl Input {
                 source,
                 size_from_frames,
             },
+            skip_bad_frames: config.skip_bad_frames,
+            bad: OnceLock::new(),
         })
     }
 
@@ -321,10 +328,73 @@ impl Input {
         self.sequence.timestamps()
     }
 
-    /// The colour image and depth (metres) of frame `i`.
+    /// The colour image and depth (metres) of frame `i`. A file that cannot be used
+    /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
+    /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.
     pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, dynapix_io::DepthImage)> {
         let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
-        Ok(self.sequence.load_rgbd(i)?)
+        let info = self.sequence.info(i)?;
+        let bad = |file: &Path, reason: String| {
+            Error::Frame(BadFrame {
+                index: i,
+                timestamp: info.t,
+                file: file.to_path_buf(),
+                reason,
+            })
+        };
+        let (rgb, depth) = self
+            .sequence
+            .load_rgbd(i)
+            .map_err(|e| bad(e.path(), e.reason()))?;
+        let s = &self.camera.settings;
+        if rgb.dimensions() != (s.width, s.height) {
+            return Err(bad(
+                &info.rgb,
+                format!(
+                    "size {}x{} differs from the camera's {}x{}",
+                    rgb.width(),
+                    rgb.height(),
+                    s.width,
+                    s.height
+                ),
+            ));
+        }
+        Ok((rgb, depth))
+    }
+
+    /// The frames whose files cannot be used, in frame order, when this input skips them
+    /// ([`Input::skip_bad_frames`]; every frame is decoded once, in parallel, on the first
+    /// call); empty otherwise. Motion maps leave these frames out, and their neighbours do
+    /// without them.
+    pub fn bad_frames(&self) -> &[BadFrame] {
+        if !self.skip_bad_frames {
+            return &[];
+        }
+        self.bad.get_or_init(|| {
+            use rayon::prelude::*;
+            (0..self.len())
+                .into_par_iter()
+                .filter_map(|i| match self.load_rgbd(i) {
+                    Err(Error::Frame(b)) => Some(b),
+                    _ => None,
+                })
+                .collect()
+        })
+    }
+
+    /// True when frame `i` is one of [`Input::bad_frames`].
+    pub fn is_bad(&self, i: usize) -> bool {
+        self.bad_frames()
+            .binary_search_by_key(&i, |b| b.index)
+            .is_ok()
+    }
+
+    /// The indices of [`Input::bad_frames`] for the records of whatever they change (first
+    /// pass, motion maps); `None` when there is none, so records without them keep their keys.
+    pub fn bad_frames_record(&self) -> Option<serde_json::Value> {
+        let bad = self.bad_frames();
+        (!bad.is_empty())
+            .then(|| serde_json::json!(bad.iter().map(|b| b.index).collect::<Vec<_>>()))
     }
 
     /// The file name of frame `i`'s probability map or mask: the rgb file name with `.png`.

@@ -75,7 +75,7 @@ pub use config::{
     PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
 pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
-pub use error::{Error, Result};
+pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use maps::{FrameMaps, MapFolder, MapJob, MapSet};
 pub use method::{Method, Mode, Terms};

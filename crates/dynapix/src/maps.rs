@@ -60,6 +60,10 @@ impl FrameLoader for SequenceLoader<'_> {
         self.input.len()
     }
 
+    fn available(&self, i: usize) -> bool {
+        !self.input.is_bad(i)
+    }
+
     fn frame(&self, i: usize) -> std::result::Result<RgbdImages, BoxError> {
         let (rgb, depth) = self.input.load_rgbd(i)?;
         Ok(RgbdImages { rgb, depth })
@@ -200,7 +204,7 @@ impl<'a> MapJob<'a> {
     pub fn record(&self) -> Value {
         let seq = &self.input.sequence;
         let cam = self.input.camera.pinhole();
-        json!({
+        let mut r = json!({
             "maps_version": MOTION_MAPS_VERSION,
             "frames": seq.len(),
             "frame_list": seq.frame_list,
@@ -236,7 +240,11 @@ impl<'a> MapJob<'a> {
                 }),
             },
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
-        })
+        });
+        if let Some(b) = self.input.bad_frames_record() {
+            r["bad_frames_skipped"] = b;
+        }
+        r
     }
 
     /// The cache key: a hash of [`MapJob::record`].
@@ -274,7 +282,7 @@ impl<'a> MapJob<'a> {
                         "frame {i} ({name}): {what} {}: missing",
                         expected.display()
                     )),
-                    Some(path) => match image::image_dimensions(path) {
+                    Some(path) => match dynapix_io::images::image_size(path) {
                         Ok(d) if d == size => {}
                         Ok(d) => p.push(format!(
                             "frame {i} ({name}): {what} {} is {}×{}, expected {}×{}",
@@ -284,10 +292,7 @@ impl<'a> MapJob<'a> {
                             size.0,
                             size.1
                         )),
-                        Err(e) => p.push(format!(
-                            "frame {i} ({name}): {what} {}: {e}",
-                            path.display()
-                        )),
+                        Err(e) => p.push(format!("frame {i} ({name}): {what} {e}")),
                     },
                 };
                 check(Some(&f.rgb), "rgb", &f.rgb);
@@ -486,14 +491,16 @@ impl MapFolder {
         (folder, key, reused)
     }
 
-    /// True when the record says `config`, the run completed, and every frame's map exists.
+    /// True when the record says `config`, the run completed, and every frame's map exists
+    /// (bad frames of a run that skips them have none).
     pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
         let Some(Ok(rec)) = self.read_record() else {
             return false;
         };
         rec.get("config") == Some(&as_read_back(config))
             && rec.get("status").and_then(Value::as_str) == Some("complete")
-            && (0..input.len()).all(|i| self.map_path(input, i).is_some_and(|p| p.is_file()))
+            && (0..input.len())
+                .all(|i| input.is_bad(i) || self.map_path(input, i).is_some_and(|p| p.is_file()))
     }
 
     /// Writes the map of one frame atomically.
@@ -600,7 +607,8 @@ pub fn cached_maps(
     })
 }
 
-/// Computes every frame of `job` into `folder` and records it complete.
+/// Computes every frame of `job` (but the bad frames of a run that skips them) into `folder`
+/// and records it complete.
 pub fn compute_into(
     job: &MapJob<'_>,
     folder: &MapFolder,
@@ -611,8 +619,8 @@ pub fn compute_into(
     let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
     folder.write_record(job.input, config, "running", Value::Null)?;
-    let task = Task::begin(progress, label, n);
-    let all: Vec<usize> = (0..n).collect();
+    let all: Vec<usize> = (0..n).filter(|&i| !job.input.is_bad(i)).collect();
+    let task = Task::begin(progress, label, all.len());
     let stats = job.run(
         &all,
         |m| {

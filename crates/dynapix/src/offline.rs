@@ -189,6 +189,7 @@ impl<'a> OfflineRunner<'a> {
         if !wanted {
             return Ok(None);
         }
+        let _ = self.input.bad_frames();
         let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
         cached_rigidity(&job, &self.cache_dir(), "rigidity maps", progress).map(Some)
     }
@@ -203,7 +204,7 @@ impl<'a> OfflineRunner<'a> {
                 RigidityJob::new(self.input, c.motion.rigidity.clone()).record(),
             ),
         };
-        json!({
+        let mut r = json!({
             "kind": c.passes.first,
             "version": SLAM_PASS_VERSION,
             "frames_hash": self.input.frames_hash(),
@@ -214,7 +215,11 @@ impl<'a> OfflineRunner<'a> {
             "method": c.method.name(),
             "vocabulary": c.slam.vocabulary,
             "seed": c.slam.seed,
-        })
+        });
+        if let Some(b) = self.input.bad_frames_record() {
+            r["bad_frames_skipped"] = b;
+        }
+        r
     }
 
     /// The first pass: given by the caller, found in the cache, or run now (and cached).
@@ -350,6 +355,8 @@ impl<'a> OfflineRunner<'a> {
         if self.config.method.terms().is_none() {
             return Ok((None, None));
         }
+        // Bad frames are found once, here, before any parallel work asks for them.
+        let _ = self.input.bad_frames();
         if let Some(m) = self.sequence_maps()? {
             return Ok((None, Some(m)));
         }
@@ -435,6 +442,12 @@ impl<'a> OfflineRunner<'a> {
             passes,
             record,
         })
+    }
+
+    /// The record fields every run has (the body of `run.json` before any pass; a caller
+    /// whose run stopped writes this).
+    pub fn record(&self) -> Value {
+        self.base_record()
     }
 
     /// The record fields every run has.

@@ -21,7 +21,7 @@ use image::{GrayImage, RgbImage};
 use serde::Serialize;
 
 use crate::config::VocabularyChoice;
-use crate::error::{Error, Result};
+use crate::error::{BadFrame, Error, Result, StoppedPass};
 use crate::input::{Camera, Input};
 use crate::progress::{Progress, Task};
 
@@ -103,6 +103,8 @@ pub struct PassStats {
     pub seconds: f64,
     /// Frames that ran unweighted because their probability map was missing.
     pub frames_without_prob_map: usize,
+    /// Frames skipped because their files cannot be used (recorded lost).
+    pub frames_skipped: usize,
 }
 
 /// What a pass leaves.
@@ -120,6 +122,8 @@ pub struct PassOutput {
     pub timings: Vec<FrameTiming>,
     /// Counters.
     pub stats: PassStats,
+    /// Frames skipped because their files cannot be used, in order.
+    pub skipped: Vec<BadFrame>,
 }
 
 /// A SLAM system being fed frames, with the bookkeeping of a pass.
@@ -129,6 +133,7 @@ pub struct SlamSession {
     timings: Vec<FrameTiming>,
     started: Instant,
     missing_weights: usize,
+    skipped: Vec<BadFrame>,
 }
 
 impl SlamSession {
@@ -149,6 +154,7 @@ impl SlamSession {
             timings: Vec::new(),
             started: Instant::now(),
             missing_weights: 0,
+            skipped: Vec::new(),
         })
     }
 
@@ -215,6 +221,16 @@ impl SlamSession {
         }
     }
 
+    /// Records a frame that is not tracked because its files cannot be used: lost in the
+    /// status, listed in the pass's output; the system goes on with the next frame.
+    pub fn skip(&mut self, bad: BadFrame) {
+        self.status.push(StampedStatus {
+            t: bad.timestamp,
+            status: FrameStatus::Lost,
+        });
+        self.skipped.push(bad);
+    }
+
     /// Counts a frame that ran unweighted because its map was missing.
     pub fn note_missing_weights(&mut self) {
         self.missing_weights += 1;
@@ -255,7 +271,9 @@ impl SlamSession {
                 loops_closed: self.system.loop_events().len(),
                 seconds: self.started.elapsed().as_secs_f64(),
                 frames_without_prob_map: self.missing_weights,
+                frames_skipped: self.skipped.len(),
             },
+            skipped: self.skipped.clone(),
         }
     }
 }
@@ -288,6 +306,16 @@ struct Decoded {
 fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path>) -> Decoded {
     let t = input.sequence.frames[i].t;
     let images = input.load_rgbd(i);
+    if images.is_err() {
+        // The frame is skipped or stops the pass: its map and mask do not matter.
+        return Decoded {
+            t,
+            images,
+            weights: Ok(None),
+            mask: Ok(None),
+            missing: false,
+        };
+    }
     let name = input.map_name(i);
     let mut missing = false;
     let weights = match (weights, &name) {
@@ -336,6 +364,11 @@ fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path
 
 /// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
 /// masks named like the rgb images), reporting progress as `label`.
+///
+/// A frame whose rgb or depth file cannot be used is skipped when `input` skips bad frames
+/// ([`SlamSession::skip`]: lost, listed in [`PassOutput::skipped`]), its weight map and mask
+/// unread. Otherwise, and for any other error, the pass stops there with
+/// [`Error::Stopped`], which keeps the pass up to the frame before.
 pub fn run_pass(
     input: &Input,
     session: &mut SlamSession,
@@ -346,7 +379,7 @@ pub fn run_pass(
 ) -> Result<PassOutput> {
     let n = input.len();
     let task = Task::begin(progress, label, n);
-    std::thread::scope(|scope| -> Result<()> {
+    let fed = std::thread::scope(|scope| -> Result<()> {
         let (tx, rx) = sync_channel::<Decoded>(4);
         scope.spawn(move || {
             for i in 0..n {
@@ -356,7 +389,16 @@ pub fn run_pass(
             }
         });
         for d in rx {
-            let (rgb, depth) = d.images?;
+            let (rgb, depth) = match d.images {
+                Ok(images) => images,
+                Err(Error::Frame(bad)) if input.skip_bad_frames => {
+                    tracing::warn!("skipped {bad}");
+                    session.skip(bad);
+                    task.step(&session.summary());
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             let (w, m) = (d.weights?, d.mask?);
             if d.missing {
                 session.note_missing_weights();
@@ -365,8 +407,17 @@ pub fn run_pass(
             task.step(&session.summary());
         }
         Ok(())
-    })?;
+    });
     drop(task);
-    session.finish();
-    Ok(session.output())
+    match fed {
+        Ok(()) => {
+            session.finish();
+            Ok(session.output())
+        }
+        Err(error) => Err(Error::Stopped(Box::new(StoppedPass {
+            label: label.to_string(),
+            error,
+            partial: session.output(),
+        }))),
+    }
 }

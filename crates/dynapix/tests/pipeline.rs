@@ -357,3 +357,56 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     assert_eq!(out.record["ground_truth_used_at_run_time"], true);
     assert_eq!(out.record["oracle_poses"], true);
 }
+
+/// A frame whose depth file is no image stops a run naming it and keeps the pass up to it;
+/// with `sequence.skip_bad_frames` the frame is found up front, recorded lost, and the run
+/// goes on.
+#[test]
+fn a_bad_frame_stops_the_run_or_is_skipped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = camera_only(tmp.path());
+    let mut config =
+        Config::from_yaml_str("method: orbslam2\nsequence: {max_frames: 20}\n").unwrap();
+    let input = open(&seq, &config);
+    std::fs::write(&input.sequence.frames[5].depth, b"no image").unwrap();
+    let cache = tmp.path().join("cache");
+    let options = RunOptions {
+        cache_dir: Some(cache.clone()),
+        ..Default::default()
+    };
+    let e = OfflineRunner::new(&config, &input, options.clone())
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap_err();
+    let bad = e.bad_frame().expect("the error names the frame");
+    assert_eq!(bad.index, 5);
+    assert_eq!(bad.file, input.sequence.frames[5].depth);
+    assert!(e.to_string().contains("frame 5"), "{e}");
+    let partial = e.partial_pass().expect("the pass so far");
+    assert_eq!(partial.status.len(), 5);
+    assert_eq!(partial.stats.tracked, 5);
+    assert!(
+        input.bad_frames().is_empty(),
+        "not looked for unless skipping"
+    );
+
+    config = Config::from_yaml_str(
+        "method: orbslam2\nsequence: {max_frames: 20, skip_bad_frames: true}\n",
+    )
+    .unwrap();
+    let input = open(&seq, &config);
+    assert!(input.skip_bad_frames);
+    let found: Vec<usize> = input.bad_frames().iter().map(|b| b.index).collect();
+    assert_eq!(found, vec![5]);
+    let out = OfflineRunner::new(&config, &input, options)
+        .unwrap()
+        .run(&NoProgress)
+        .unwrap();
+    let pass = out.final_pass().unwrap();
+    assert_eq!(pass.skipped.len(), 1);
+    assert_eq!(pass.skipped[0].index, 5);
+    assert_eq!(pass.stats.frames_skipped, 1);
+    assert_eq!(pass.status.len(), 20);
+    assert_eq!(pass.status[5].status, dynapix_io::FrameStatus::Lost);
+    assert_eq!(pass.stats.tracked, 19);
+}

@@ -52,6 +52,7 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         recompute_prob: true,
         allow_missing_prob: false,
         allow_untracked: true,
+        skip_bad_frames: false,
         online: args.online,
         lookahead: args.lookahead,
     };

@@ -204,6 +204,102 @@ impl Progress for Bars {
     }
 }
 
+/// Files that mark a folder as an earlier result set of `slam` or `run`: such a folder (or an
+/// empty one) may be replaced by a run; any other is refused.
+pub const RESULT_MARKERS: &[&str] = &["run.json", "slam.json", "trajectory.txt", "status.txt"];
+
+/// `p` with its longest existing ancestor resolved (links, `..`) and the rest appended.
+fn resolve(p: &Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut rest = Vec::new();
+    let mut cur = abs.as_path();
+    loop {
+        if let Ok(c) = cur.canonicalize() {
+            return rest.iter().rev().fold(c, |acc: PathBuf, n| acc.join(n));
+        }
+        match (cur.parent(), cur.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                cur = parent;
+            }
+            _ => return abs,
+        }
+    }
+}
+
+/// True when `p` lies inside (or is) the existing folder `dir`.
+fn inside(p: &Path, dir: &Path) -> bool {
+    dir.exists() && resolve(p).starts_with(resolve(dir))
+}
+
+/// Checks `--out` up front, before any work: its parent is writable, it is new, empty or an
+/// earlier result set ([`RESULT_MARKERS`]), and none of `keep` (what → path: the sequence, the
+/// cache, a map to load) lies inside it, since a run replaces the folder as a whole.
+pub fn check_out(out: &Path, keep: &[(&str, &Path)]) -> anyhow::Result<()> {
+    dynapix_io::output::check_output_folder(out, RESULT_MARKERS)?;
+    for (what, p) in keep {
+        if inside(p, out) {
+            anyhow::bail!(
+                "{what} {} lies inside --out {}, which a run replaces as a whole; keep it \
+                 outside the output folder",
+                p.display(),
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The first library error in the chain of `e`.
+fn library_error(e: &anyhow::Error) -> Option<&dynapix::Error> {
+    e.chain().find_map(|c| c.downcast_ref::<dynapix::Error>())
+}
+
+/// What a pass had computed when `e` stopped it.
+pub fn partial_pass(e: &anyhow::Error) -> Option<&PassOutput> {
+    library_error(e).and_then(dynapix::Error::partial_pass)
+}
+
+/// The record fields of a run that did not complete: `complete: false`, the error, and the
+/// frame that stopped it when a frame did.
+pub fn incomplete(e: &anyhow::Error) -> serde_json::Value {
+    serde_json::json!({
+        "complete": false,
+        "error": report(e),
+        "failed_frame": library_error(e).and_then(dynapix::Error::bad_frame),
+    })
+}
+
+/// Adds the keys of the object `extra` to the object `record`.
+pub fn merge(record: &mut serde_json::Value, extra: serde_json::Value) {
+    if let (serde_json::Value::Object(r), serde_json::Value::Object(x)) = (record, extra) {
+        r.extend(x);
+    }
+}
+
+/// The summary words about skipped frames: `, 2 bad frame(s) skipped (frames 3, 9)`, or
+/// nothing when no frame was skipped and skipping is off.
+pub fn skipped_note(skipped: &[dynapix::BadFrame], skipping: bool) -> String {
+    if skipped.is_empty() && !skipping {
+        return String::new();
+    }
+    let list: Vec<String> = skipped
+        .iter()
+        .take(10)
+        .map(|b| b.index.to_string())
+        .collect();
+    let more = if skipped.len() > 10 { ", …" } else { "" };
+    if skipped.is_empty() {
+        ", no bad frame skipped".into()
+    } else {
+        format!(
+            ", {} bad frame(s) skipped (frames {}{more})",
+            skipped.len(),
+            list.join(", ")
+        )
+    }
+}
+
 /// Writes what every SLAM pass leaves in `out`: `trajectory.txt` (TUM, the current estimate
 /// of every tracked frame), `status.txt`, `keyframes.txt` and `loops.txt`.
 pub fn write_pass(out: &Path, pass: &PassOutput) -> anyhow::Result<()> {
@@ -295,5 +391,42 @@ pub fn check_tracked(seq: &Path, tracked: usize, allow: bool) -> anyhow::Result<
             "nothing tracked in {} (outputs written; pass --allow-untracked to exit 0)",
             seq.display()
         )
+    }
+}
+
+/// The message of `e` and its causes, joined by ": ", each cause once: a cause whose text the
+/// message before it already ends with (an error that prints its source, like
+/// `path: No such file or directory (os error 2)`) is not repeated.
+pub fn report(e: &anyhow::Error) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if text.is_empty() || parts.last().is_some_and(|p| p.ends_with(&text)) {
+            continue;
+        }
+        parts.push(text);
+    }
+    parts.join(": ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_names_every_cause_once() {
+        let os = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let os_text = os.to_string();
+        let io = dynapix_io::IoError::io("seq/rgb/1.png", os);
+        let e = anyhow::Error::new(io).context("cannot read the sequence seq");
+        let r = report(&e);
+        assert_eq!(r.matches(&os_text).count(), 1, "{r}");
+        assert!(
+            r.starts_with("cannot read the sequence seq: seq/rgb/1.png"),
+            "{r}"
+        );
+        // Causes that add something are kept.
+        let e = anyhow::anyhow!("inner").context("outer");
+        assert_eq!(report(&e), "outer: inner");
     }
 }

@@ -182,7 +182,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     let rgb = dynapix_io::images::read_rgb(f)?;
                     match overlay(&rgb, &pd.join(name)) {
                         Ok(ov) => strip.push((rgb, ov)),
-                        Err(e) => tracing::warn!("overlay: {e:#}"),
+                        Err(e) => tracing::warn!("overlay: {}", super::common::report(&e)),
                     }
                 }
             }

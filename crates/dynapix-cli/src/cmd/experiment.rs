@@ -2,8 +2,9 @@
 //! per sequence mean ± std over runs of ATE RMSE and tracking rate, Average row, ATR) as
 //! Markdown, CSV and JSON. First passes and motion maps are prepared first (once per sequence
 //! and probability variant, sequentially, into each sequence's cache); the SLAM runs then go
-//! in parallel (`--jobs`), all in this process. Resumable: a run whose `eval.json` (or,
-//! without ground truth, `trajectory.txt`) exists is not repeated. Run k uses seed `seed + k`;
+//! in parallel (`--jobs`), all in this process. Resumable: a run whose `run.json` does not say
+//! it stopped and whose `eval.json` (or, without ground truth, `trajectory.txt`) exists is not
+//! repeated. Run k uses seed `seed + k`;
 //! each run folder holds its trajectory, evaluation, plots and `run.json`.
 
 use std::path::{Path, PathBuf};
@@ -85,6 +86,15 @@ fn read_result(dir: &Path) -> Option<(RunResult, Option<f64>)> {
     ))
 }
 
+/// True unless the run folder's `run.json` says the run stopped (`"complete": false`); a
+/// folder of a version without the field counts as complete.
+fn completed(dir: &Path) -> bool {
+    std::fs::read_to_string(dir.join("run.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v.get("complete") != Some(&serde_json::Value::Bool(false)))
+}
+
 /// Runs `dynapix experiment`.
 pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if args.runs == 0 {
@@ -137,9 +147,10 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     .join(name)
                     .join(m.name())
                     .join(format!("run_{k}"));
-                let done = dir.join("eval.json").exists()
-                    || (!seq.join("groundtruth.txt").exists()
-                        && dir.join("trajectory.txt").exists());
+                let done = completed(&dir)
+                    && (dir.join("eval.json").exists()
+                        || (!seq.join("groundtruth.txt").exists()
+                            && dir.join("trajectory.txt").exists()));
                 if !done {
                     jobs.push((input, name, base.clone().with_method(m), dir, k as u64));
                 }
@@ -171,7 +182,8 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     task: "runs",
                     message: &msg,
                 });
-                r.err().map(|e| format!("{}: {e:#}", dir.display()))
+                r.err()
+                    .map(|e| format!("{}: {}", dir.display(), super::common::report(&e)))
             })
             .collect()
     });

@@ -3,7 +3,7 @@
 //! Middlebury `.flo` file and, optionally, its colour-wheel picture. Colour images are
 //! converted to grey (ITU-R 601 luma, as the `image` crate does).
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use dynapix_flow::{
     DisFlow, FlowProvider, Preset, flow_to_color, flow_to_color_with_max, write_flo,
 };
@@ -31,20 +31,9 @@ pub struct Args {
     pub viz_max: Option<f32>,
 }
 
+/// Reads an image as grey with the one decoder of every command (format by content).
 fn load_gray(path: &Path) -> anyhow::Result<image::GrayImage> {
-    let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
-    Ok(img.to_luma8())
-}
-
-/// Saves a PNG atomically (temporary file in the same folder, then rename).
-fn save_png_atomic(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    img.save_with_format(&tmp, image::ImageFormat::Png)
-        .with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    Ok(dynapix_io::images::read_gray(path)?)
 }
 
 /// Runs `dynapix flow`.
@@ -79,7 +68,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(m) => flow_to_color_with_max(&flow, m),
             None => flow_to_color(&flow),
         };
-        save_png_atomic(&img, viz)?;
+        dynapix_io::images::write_rgb(viz, &img)?;
     }
     Ok(())
 }

@@ -43,8 +43,8 @@ pub struct Args {
     pub seq: SequenceArgs,
     /// Poses for splatting: `gt` (SEQ_DIR/groundtruth.txt, SLERP at frame time), `own` (the
     /// system's own ORB-SLAM2 pass, cached in SEQ_DIR/dynapix_cache) or a TUM trajectory file.
-    #[arg(long, default_value = "gt")]
-    pub poses: String,
+    #[arg(long, default_value = "gt", value_name = "gt|own|FILE", value_parser = parse_poses)]
+    pub poses: PoseSource,
     /// Largest allowed distance (s) from a frame to the nearest pose.
     #[arg(long)]
     pub max_pose_gap: Option<f64>,
@@ -110,6 +110,19 @@ pub struct Args {
     pub write_poses: Option<PathBuf>,
 }
 
+/// `--poses`: one of the two names, or a trajectory file that exists; anything else lists
+/// the valid values.
+fn parse_poses(s: &str) -> Result<PoseSource, String> {
+    match s {
+        "gt" => Ok(PoseSource::GroundTruth),
+        "own" => Ok(PoseSource::Own),
+        f if std::path::Path::new(f).is_file() => Ok(PoseSource::File(PathBuf::from(f))),
+        f => Err(format!(
+            "expected gt, own or a TUM trajectory file; {f:?} is neither name and no file"
+        )),
+    }
+}
+
 /// Fig.-1-style picture: the frame with moving regions tinted red in proportion to P.
 fn overlay(rgb: &RgbImage, p: &FloatImage) -> RgbImage {
     let mut out = rgb.clone();
@@ -165,11 +178,7 @@ fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
     if let Some(g) = args.max_pose_gap {
         c.motion.max_pose_gap = g;
     }
-    c.motion.poses = match args.poses.as_str() {
-        "gt" => PoseSource::GroundTruth,
-        "own" => PoseSource::Own,
-        f => PoseSource::File(PathBuf::from(f)),
-    };
+    c.motion.poses = args.poses.clone();
     c.validate()?;
     Ok(c)
 }

@@ -13,7 +13,10 @@
 //! Outputs in `--out`: `trajectory.txt` (TUM, tracked frames, camera-to-world),
 //! `status.txt`, `keyframes.txt`, `loops.txt`, `run.json`, and with ground truth `eval.json`
 //! and plots. With `--runs N > 1`, run k (seed + k) goes to `run_<k>/` and `trajectory.txt`
-//! is run 0's.
+//! is run 0's. The result set is written beside `--out` and replaces it as a whole at the end
+//! (`dynapix_io::output`), also when the run stops at a frame it cannot read: then with what
+//! it had computed and `"complete": false` in `run.json` (`--skip-bad-frames` skips such
+//! frames instead and lists them).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -24,11 +27,14 @@ use dynapix::{
     Config, Cue, Cues, FirstPass, FlowPreset, Input, Method, Mode, OnlineDynaPix, PoseSource,
     RgbdFrame,
 };
-use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
+use dynapix_io::{FrameStatus, OutputFolder, StampedPose, StampedStatus, Trajectory};
 use dynapix_slam::dynapix::ProbUpdate;
 use serde_json::{Value, json};
 
-use super::common::{Bars, SequenceArgs, evaluate, plots, write_json, write_pass};
+use super::common::{
+    Bars, RESULT_MARKERS, SequenceArgs, check_out, evaluate, incomplete, merge, plots,
+    skipped_note, write_json, write_pass,
+};
 
 /// Per-map-point probability update rule.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -171,6 +177,13 @@ pub struct Args {
     /// frames.
     #[arg(long, requires = "online")]
     pub lookahead: Option<usize>,
+    /// A frame whose rgb or depth file cannot be used (missing, truncated, undecodable, of
+    /// another size) is recorded lost, gets no motion map (its neighbours' maps do without
+    /// it) and SLAM goes on with the next one; the skipped frames are listed in `run.json`.
+    /// Without it the run stops at such a frame with an error naming it, keeping the
+    /// trajectory and status up to it (`"complete": false`).
+    #[arg(long)]
+    pub skip_bad_frames: bool,
 }
 
 /// What one run produced (used by `experiment` and `demo`).
@@ -192,6 +205,8 @@ pub struct RunOutcome {
     pub earlier_passes: Vec<Value>,
     /// Frames tracked in each run's final pass.
     pub tracked: Vec<usize>,
+    /// Frames skipped as unusable in each run's final pass.
+    pub skipped: Vec<Vec<dynapix::BadFrame>>,
 }
 
 /// One run to execute: a configuration on an opened sequence.
@@ -225,7 +240,7 @@ fn evaluate_into(
         && ev.as_ref().is_some_and(|r| r.result.ate_rmse_m.is_some())
         && let Err(e) = plots(seq_dir, &traj, dir)
     {
-        tracing::warn!("plots of {}: {e:#}", dir.display());
+        tracing::warn!("plots of {}: {}", dir.display(), super::common::report(&e));
     }
     if let Some(r) = &ev {
         stats["ate_rmse_m"] = json!(r.result.ate_rmse_m);
@@ -240,42 +255,89 @@ fn evaluate_into(
 }
 
 /// Writes the trajectories of the passes before the final one (`passes/first`,
-/// `passes/pass_K`) and evaluates them: how the alternation of SLAM and motion converges.
+/// `passes/pass_K`) into `out` and evaluates them: how the alternation of SLAM and motion
+/// converges. The rows name the folders as they will be once `out` is moved to `shown`.
 fn write_earlier_passes(
     input: &Input,
     out: &Path,
+    shown: &Path,
     run: &dynapix::OfflineOutput,
 ) -> anyhow::Result<Vec<Value>> {
     let mut dirs: Vec<(String, PathBuf)> = Vec::new();
     if let Some(f) = &run.first_pass {
-        let d = out.join("passes").join("first");
+        let rel = Path::new("passes").join("first");
+        let d = out.join(&rel);
         std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
         f.trajectory.write_tum(d.join("trajectory.txt"))?;
-        dirs.push(("first".into(), d));
+        dirs.push(("first".into(), rel));
     }
     let n = run.passes.len();
     for (j, p) in run.passes.iter().enumerate().take(n.saturating_sub(1)) {
-        let d = out.join("passes").join(format!("pass_{}", j + 1));
-        write_pass(&d, p)?;
-        dirs.push((format!("{}", j + 1), d));
+        let rel = Path::new("passes").join(format!("pass_{}", j + 1));
+        write_pass(&out.join(&rel), p)?;
+        dirs.push((format!("{}", j + 1), rel));
     }
     let mut rows = Vec::new();
-    for (name, d) in dirs {
-        let mut stats = json!({"pass": name, "dir": d});
-        evaluate_into(input, &d, &mut stats, false)?;
+    for (name, rel) in dirs {
+        let mut stats = json!({"pass": name, "dir": shown.join(&rel)});
+        evaluate_into(input, &out.join(&rel), &mut stats, false)?;
         rows.push(stats);
     }
     Ok(rows)
 }
 
-/// Runs `spec` offline and writes its outputs.
+/// The folders and files a run must not replace: the sequence, the cache, DynaPix+ masks.
+fn kept_paths(input: &Input, runner: &OfflineRunner<'_>) -> Vec<(&'static str, PathBuf)> {
+    let mut keep = vec![("the sequence", input.sequence.dir.clone())];
+    keep.push(("the cache", runner.cache_dir()));
+    if runner.config().method.needs_masks() {
+        keep.push(("the masks", runner.masks_dir()));
+    }
+    keep
+}
+
+/// Runs `spec` offline and writes its outputs: into a folder beside `spec.out` that replaces
+/// it at the end, also when the run stops part-way (then with what it had computed and
+/// `"complete": false` in `run.json`).
 pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
     if spec.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    std::fs::create_dir_all(&spec.out)
-        .with_context(|| format!("cannot create {}", spec.out.display()))?;
     let runner = OfflineRunner::new(&spec.config, spec.input, spec.options.clone())?;
+    let keep = kept_paths(spec.input, &runner);
+    let keep: Vec<(&str, &Path)> = keep.iter().map(|(w, p)| (*w, p.as_path())).collect();
+    check_out(&spec.out, &keep)?;
+    let staged = OutputFolder::begin(&spec.out, RESULT_MARKERS)?;
+    let mut record = runner.record();
+    match execute_into(&spec, &runner, staged.path(), &mut record, bars) {
+        Ok(outcome) => {
+            record["complete"] = json!(true);
+            write_json(&staged.path().join("run.json"), &record)?;
+            staged.commit()?;
+            Ok(outcome)
+        }
+        Err(e) => {
+            merge(&mut record, incomplete(&e));
+            write_json(&staged.path().join("run.json"), &record)?;
+            let out = staged.commit()?;
+            eprintln!(
+                "the run stopped; {} keeps what it computed (marked incomplete)",
+                out.display()
+            );
+            Err(e)
+        }
+    }
+}
+
+/// The runs of `spec` written into `out` (the staging folder of `spec.out`), their facts
+/// added to `record`. A pass that stops leaves its files up to the frame that stopped it.
+fn execute_into(
+    spec: &RunSpec<'_>,
+    runner: &OfflineRunner<'_>,
+    out: &Path,
+    record: &mut Value,
+    bars: &Bars,
+) -> anyhow::Result<RunOutcome> {
     let mut outcome = RunOutcome {
         trajectory: spec.out.join("trajectory.txt"),
         ate: Vec::new(),
@@ -285,33 +347,53 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         floor: None,
         earlier_passes: Vec::new(),
         tracked: Vec::new(),
+        skipped: Vec::new(),
     };
-    let mut record = Value::Null;
     let mut runs = Vec::new();
+    record["runs"] = json!(spec.runs);
+    record["seed"] = json!(spec.config.slam.seed + spec.first_run);
     for k in 0..spec.runs {
         let dir = if spec.runs == 1 {
-            spec.out.clone()
+            out.to_path_buf()
         } else {
-            spec.out.join(format!("run_{k}"))
+            out.join(format!("run_{k}"))
         };
         let seed = spec.config.slam.seed + spec.first_run + k as u64;
-        let out = runner.run_with_seed(seed, bars)?;
-        let pass = out.final_pass().context("the run produced no pass")?;
+        let run = match runner.run_with_seed(seed, bars) {
+            Ok(run) => run,
+            Err(e) => {
+                // Keep what was computed: the pass that stopped, up to its last good frame.
+                if let Some(p) = e.partial_pass() {
+                    write_pass(&dir, p)?;
+                    runs.push(json!(p.stats));
+                    record["skipped_frames"] = json!(p.skipped);
+                }
+                record["results"] = json!(runs);
+                return Err(e.into());
+            }
+        };
+        let pass = run.final_pass().context("the run produced no pass")?;
         write_pass(&dir, pass)?;
         if k == 0 {
             if spec.runs > 1 {
-                std::fs::copy(dir.join("trajectory.txt"), &outcome.trajectory)?;
+                std::fs::copy(dir.join("trajectory.txt"), out.join("trajectory.txt"))?;
             }
-            outcome.prob_dir = out.final_maps().map(|m| m.folder.dir.clone());
+            outcome.prob_dir = run.final_maps().map(|m| m.folder.dir.clone());
             outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
-            record = out.record.clone();
-            let earlier = write_earlier_passes(spec.input, &spec.out, &out)?;
+            // The run's record replaces the record before the run (the runner's own fields).
+            let (runs, seed) = (record["runs"].take(), record["seed"].take());
+            *record = run.record.clone();
+            record["runs"] = runs;
+            record["seed"] = seed;
+            let earlier = write_earlier_passes(spec.input, out, &spec.out, &run)?;
             if !earlier.is_empty() {
                 record["earlier_passes"] = json!(earlier);
             }
+            record["skipped_frames"] = json!(pass.skipped);
             outcome.earlier_passes = earlier;
         }
         outcome.tracked.push(pass.stats.tracked);
+        outcome.skipped.push(pass.skipped.clone());
         let mut stats = serde_json::to_value(pass.stats)?;
         let ev = evaluate_into(spec.input, &dir, &mut stats, true)?;
         outcome
@@ -323,22 +405,89 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
         outcome.floor = ev.as_ref().and_then(|r| r.motionless_floor_m);
         runs.push(stats);
     }
-    record["runs"] = json!(spec.runs);
-    record["seed"] = json!(spec.config.slam.seed + spec.first_run);
     record["results"] = json!(runs);
-    write_json(&spec.out.join("run.json"), &record)?;
     Ok(outcome)
 }
 
-/// Runs `config` online over `input` and writes its outputs into `out`.
+/// Runs `config` online over `input` and writes its outputs into `out`, replaced as a whole
+/// at the end (like [`execute`]).
 pub fn execute_online(
     input: &Input,
     config: &Config,
     out: &Path,
     bars: &Bars,
 ) -> anyhow::Result<RunOutcome> {
+    check_out(out, &[("the sequence", input.sequence.dir.as_path())])?;
+    let staged = OutputFolder::begin(out, RESULT_MARKERS)?;
+    let mut record = json!({
+        "sequence": input.record(),
+        "method": config.method.name(),
+        "mode": config.mode.name(),
+        "schedule": "online",
+        "ground_truth_used_at_run_time": false,
+        "config": config.to_json_value(),
+        "outputs": {
+            "trajectory.txt": "poses as reported when each frame was processed",
+            "trajectory_refined.txt": "the system's final estimate of every tracked frame",
+        },
+    });
+    let result = online_into(input, config, staged.path(), &mut record, bars);
+    if let Err(e) = &result {
+        merge(&mut record, incomplete(e));
+    } else {
+        record["complete"] = json!(true);
+    }
+    write_json(&staged.path().join("run.json"), &record)?;
+    let written = staged.commit()?;
+    if result.is_err() {
+        eprintln!(
+            "the run stopped; {} keeps what it computed (marked incomplete)",
+            written.display()
+        );
+    }
+    let mut o = result?;
+    o.trajectory = out.join("trajectory.txt");
+    Ok(o)
+}
+
+/// Writes the poses reported so far and every frame's status (skipped frames lost) into `dir`.
+fn write_online_poses(
+    dir: &Path,
+    results: &[dynapix::FrameResult],
+    skipped: &[dynapix::BadFrame],
+) -> anyhow::Result<Vec<StampedStatus>> {
+    let reported = Trajectory::new(
+        results
+            .iter()
+            .filter_map(|r| r.pose_wc.map(|p| StampedPose::new(r.t, p)))
+            .collect(),
+    );
+    reported.write_tum(dir.join("trajectory.txt"))?;
+    let mut status: Vec<StampedStatus> = results
+        .iter()
+        .map(|r| StampedStatus {
+            t: r.t,
+            status: r.status,
+        })
+        .chain(skipped.iter().map(|b| StampedStatus {
+            t: b.timestamp,
+            status: FrameStatus::Lost,
+        }))
+        .collect();
+    status.sort_by(|a, b| a.t.total_cmp(&b.t));
+    dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
+    Ok(status)
+}
+
+/// The online run of [`execute_online`] into the folder `dir`.
+fn online_into(
+    input: &Input,
+    config: &Config,
+    dir: &Path,
+    record: &mut Value,
+    bars: &Bars,
+) -> anyhow::Result<RunOutcome> {
     use dynapix::Progress;
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut online = OnlineDynaPix::new(&input.camera, config)?;
     let n = input.len();
     let label = format!("{} online", config.method);
@@ -348,27 +497,51 @@ pub fn execute_online(
     });
     let started = Instant::now();
     let mut results = Vec::with_capacity(n);
+    let mut skipped = Vec::new();
     let mut load_ms = 0.0;
     for i in 0..n {
         let t0 = Instant::now();
-        let (rgb, depth) = input.load_rgbd(i)?;
-        let mask = if config.method.needs_masks() {
-            let name = input.sequence.rgb_name(i).context("no file name")?;
-            Some(dynapix_io::images::read_mask(
-                input.sequence.dir.join("mask").join(name),
-            )?)
-        } else {
-            None
-        };
+        let step = (|| -> anyhow::Result<Option<RgbdFrame>> {
+            let (rgb, depth) = match input.load_rgbd(i) {
+                Ok(images) => images,
+                Err(dynapix::Error::Frame(bad)) if input.skip_bad_frames => {
+                    tracing::warn!("skipped {bad}");
+                    skipped.push(bad);
+                    return Ok(None);
+                }
+                Err(e) => return Err(e.into()),
+            };
+            let mask = if config.method.needs_masks() {
+                let name = input.sequence.rgb_name(i).context("no file name")?;
+                Some(dynapix_io::images::read_mask(
+                    input.sequence.dir.join("mask").join(name),
+                )?)
+            } else {
+                None
+            };
+            Ok(Some(RgbdFrame {
+                t: input.sequence.frames[i].t,
+                rgb,
+                depth,
+                mask,
+            }))
+        })();
         load_ms += t0.elapsed().as_secs_f64() * 1e3;
-        let frame = RgbdFrame {
-            t: input.sequence.frames[i].t,
-            rgb,
-            depth,
-            mask,
+        let pushed = match step {
+            Ok(Some(frame)) => online.push(frame).map_err(anyhow::Error::from),
+            Ok(None) => Ok(None),
+            Err(e) => Err(e),
         };
-        if let Some(r) = online.push(frame)? {
-            results.push(r);
+        match pushed {
+            Ok(Some(r)) => results.push(r),
+            Ok(None) => {}
+            Err(e) => {
+                // Keep what was reported up to the frame that stopped the run.
+                write_online_poses(dir, &results, &skipped)?;
+                record["skipped_frames"] = json!(skipped);
+                bars.event(dynapix::ProgressEvent::End { task: &label });
+                return Err(e);
+            }
         }
         bars.event(dynapix::ProgressEvent::Step {
             task: &label,
@@ -378,21 +551,7 @@ pub fn execute_online(
     results.extend(online.finish()?);
     bars.event(dynapix::ProgressEvent::End { task: &label });
     let wall = started.elapsed().as_secs_f64();
-    let reported = Trajectory::new(
-        results
-            .iter()
-            .filter_map(|r| r.pose_wc.map(|p| StampedPose::new(r.t, p)))
-            .collect(),
-    );
-    reported.write_tum(out.join("trajectory.txt"))?;
-    let status: Vec<StampedStatus> = results
-        .iter()
-        .map(|r| StampedStatus {
-            t: r.t,
-            status: r.status,
-        })
-        .collect();
-    dynapix_io::trajectory::write_status(out.join("status.txt"), &status)?;
+    let status = write_online_poses(dir, &results, &skipped)?;
     let refined = Trajectory::new(
         online
             .system()
@@ -401,7 +560,7 @@ pub fn execute_online(
             .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
             .collect(),
     );
-    refined.write_tum(out.join("trajectory_refined.txt"))?;
+    refined.write_tum(dir.join("trajectory_refined.txt"))?;
     let per = |f: &dyn Fn(&dynapix::FrameResult) -> f64| {
         let mut v: Vec<f64> = results.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -419,6 +578,7 @@ pub fn execute_online(
     let mut stats = json!({
         "frames": n,
         "tracked": tracked,
+        "frames_skipped": skipped.len(),
         "keyframes": online.system().map().num_keyframes(),
         "map_points": online.system().map().num_points(),
         "lookahead_frames": online.lookahead(),
@@ -429,28 +589,17 @@ pub fn execute_online(
         "image_loading_ms_mean": load_ms / n.max(1) as f64,
         "wall_seconds": wall,
     });
-    let ev = evaluate_into(input, out, &mut stats, true)?;
-    let record = json!({
-        "sequence": input.record(),
-        "method": config.method.name(),
-        "mode": config.mode.name(),
-        "schedule": "online",
-        "ground_truth_used_at_run_time": false,
-        "config": config.to_json_value(),
-        "outputs": {
-            "trajectory.txt": "poses as reported when each frame was processed",
-            "trajectory_refined.txt": "the system's final estimate of every tracked frame",
-        },
-        "results": [stats],
-    });
-    write_json(&out.join("run.json"), &record)?;
+    let ev = evaluate_into(input, dir, &mut stats, true)?;
+    record["skipped_frames"] = json!(skipped);
+    record["results"] = json!([stats]);
     Ok(RunOutcome {
-        trajectory: out.join("trajectory.txt"),
+        trajectory: dir.join("trajectory.txt"),
         ate: vec![ev.as_ref().and_then(|r| r.result.ate_rmse_m)],
         tracking_rate: vec![ev.as_ref().and_then(|r| r.result.tracking_rate)],
         floor: ev.as_ref().and_then(|r| r.motionless_floor_m),
         earlier_passes: Vec::new(),
         tracked: vec![tracked],
+        skipped: vec![skipped],
         prob_dir: None,
         written_trajectory: None,
     })
@@ -468,6 +617,9 @@ pub fn config(args: &Args) -> anyhow::Result<Config> {
     if let Some(k) = args.lookahead {
         c.online.lookahead = k;
     }
+    if args.skip_bad_frames {
+        c.sequence.skip_bad_frames = true;
+    }
     args.m.apply(&mut c)?;
     Ok(c)
 }
@@ -475,6 +627,15 @@ pub fn config(args: &Args) -> anyhow::Result<Config> {
 /// Runs `dynapix run`.
 pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let config = config(&args)?;
+    // Where the results go, before any work.
+    let mut keep = vec![("the sequence", args.seq.seq_dir.as_path())];
+    if let Some(c) = &args.cache {
+        keep.push(("the cache", c.as_path()));
+    }
+    if let Some(m) = &args.masks {
+        keep.push(("the masks", m.as_path()));
+    }
+    check_out(&args.out, &keep)?;
     let input = args.seq.open(&config)?;
     let method = config.method;
     let o = if args.online {
@@ -518,12 +679,16 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         .map(|f| format!(" (motionless floor {f:.4} m)"))
         .unwrap_or_default();
     for (k, (a, t)) in o.ate.iter().zip(&o.tracking_rate).enumerate() {
+        let skipped = skipped_note(
+            o.skipped.get(k).map_or(&[][..], Vec::as_slice),
+            args.skip_bad_frames,
+        );
         match (a, t) {
             (Some(a), Some(t)) => println!(
-                "{method} run {k}: ATE RMSE {a:.4} m, tracking rate {:.1} %{floor}",
+                "{method} run {k}: ATE RMSE {a:.4} m, tracking rate {:.1} %{floor}{skipped}",
                 t * 100.0
             ),
-            _ => println!("{method} run {k}: no ATE (no ground truth or no overlap)"),
+            _ => println!("{method} run {k}: no ATE (no ground truth or no overlap){skipped}"),
         }
     }
     println!("trajectory: {}", o.trajectory.display());

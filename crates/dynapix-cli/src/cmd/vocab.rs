@@ -177,8 +177,8 @@ fn train(a: TrainArgs, bars: &super::common::Bars) -> anyhow::Result<()> {
     let descs: Vec<Vec<[u8; 32]>> = images
         .par_iter()
         .map(|p| -> anyhow::Result<Vec<[u8; 32]>> {
-            let img = image::open(p).with_context(|| format!("reading image {}", p.display()))?;
-            let gray = rgb_to_gray_orbslam(&img.to_rgb8());
+            let img = dynapix_io::images::read_rgb(p)?;
+            let gray = rgb_to_gray_orbslam(&img);
             let (_, d) = orb.extract(&gray);
             bar.inc(1);
             Ok(d)
