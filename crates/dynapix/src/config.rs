@@ -61,6 +61,11 @@ pub struct SequenceConfig {
     /// another size) is skipped: recorded lost, no motion map, SLAM goes on with the next
     /// frame, and the run lists it. Off: the run stops at that frame with an error naming it.
     pub skip_bad_frames: bool,
+    /// Memory (MiB) for decoded frames kept between the passes of a run, so each frame's
+    /// images are decoded once instead of once per pass (0: decode every time). Frames are
+    /// kept in the order they are first read until the budget is spent (a pass reads the
+    /// sequence in order, so a least-recently-used policy would keep nothing useful).
+    pub decoded_cache_mib: usize,
 }
 
 impl Default for SequenceConfig {
@@ -70,6 +75,7 @@ impl Default for SequenceConfig {
             max_diff: dynapix_io::tum::DEFAULT_MAX_DIFF,
             max_frames: None,
             skip_bad_frames: false,
+            decoded_cache_mib: 1024,
         }
     }
 }

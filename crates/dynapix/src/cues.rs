@@ -292,7 +292,6 @@ impl GeometricInput {
                 poses.poses.len()
             )));
         }
-        let factor = input.sequence.depth_factor;
         let cam = input.camera.pinhole();
         let depths = (0..n)
             .into_par_iter()
@@ -303,9 +302,7 @@ impl GeometricInput {
                         params,
                     ));
                 }
-                let _stage =
-                    tracing::info_span!(target: "dynapix::stage", "decode images").entered();
-                let d = dynapix_io::images::read_depth(&input.sequence.frames[i].depth, factor)?;
+                let d = input.load_depth(i)?;
                 Ok(WorkingDepth::new(&d, params))
             })
             .collect::<Vec<Result<_>>>()

@@ -4,8 +4,9 @@
 //! `camera.yaml`, else the preset of the folder's dataset (`rgbd_dataset_freiburgN_*`,
 //! `rgbd_bonn_*`) or the GRADE layout, else an error that says how to give it (design §6).
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, Mutex, OnceLock};
 
 use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
 use dynapix_io::{Sequence, SequenceOptions, Settings};
@@ -183,6 +184,56 @@ pub struct Input {
     pub skip_bad_frames: bool,
     /// The bad frames, found on first use when skipping.
     bad: OnceLock<Vec<BadFrame>>,
+    /// Decoded frames kept between passes ([`SequenceConfig::decoded_cache_mib`]); clones of
+    /// an input share it.
+    decoded: DecodedFrames,
+}
+
+/// Decoded frames kept in memory up to a byte budget, first read first kept.
+#[derive(Clone)]
+struct DecodedFrames {
+    budget: usize,
+    kept: Arc<
+        Mutex<(
+            usize,
+            HashMap<usize, Arc<(RgbImage, dynapix_io::DepthImage)>>,
+        )>,
+    >,
+}
+
+impl std::fmt::Debug for DecodedFrames {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (used, n) = self.kept.lock().map(|k| (k.0, k.1.len())).unwrap_or((0, 0));
+        write!(
+            f,
+            "DecodedFrames {{ budget: {}, used: {used}, frames: {n} }}",
+            self.budget
+        )
+    }
+}
+
+impl DecodedFrames {
+    fn new(budget_mib: usize) -> Self {
+        Self {
+            budget: budget_mib.saturating_mul(1 << 20),
+            kept: Arc::new(Mutex::new((0, HashMap::new()))),
+        }
+    }
+
+    fn get(&self, i: usize) -> Option<Arc<(RgbImage, dynapix_io::DepthImage)>> {
+        self.kept.lock().ok()?.1.get(&i).cloned()
+    }
+
+    /// Keeps frame `i` when it fits the budget.
+    fn offer(&self, i: usize, rgb: &RgbImage, depth: &dynapix_io::DepthImage) {
+        let bytes = rgb.as_raw().len() + std::mem::size_of_val(depth.as_raw().as_slice());
+        let Ok(mut k) = self.kept.lock() else { return };
+        if k.1.contains_key(&i) || k.0 + bytes > self.budget {
+            return;
+        }
+        k.0 += bytes;
+        k.1.insert(i, Arc::new((rgb.clone(), depth.clone())));
+    }
 }
 
 /// Reads a settings file leniently (missing keys take the TUM values).
@@ -310,6 +361,7 @@ impl Input {
             },
             skip_bad_frames: config.skip_bad_frames,
             bad: OnceLock::new(),
+            decoded: DecodedFrames::new(config.decoded_cache_mib),
         })
     }
 
@@ -332,6 +384,9 @@ impl Input {
     /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
     /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.
     pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, dynapix_io::DepthImage)> {
+        if let Some(f) = self.decoded.get(i) {
+            return Ok((f.0.clone(), f.1.clone()));
+        }
         let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
         let info = self.sequence.info(i)?;
         let bad = |file: &Path, reason: String| {
@@ -359,7 +414,27 @@ impl Input {
                 ),
             ));
         }
+        self.decoded.offer(i, &rgb, &depth);
         Ok((rgb, depth))
+    }
+
+    /// Number of decoded frames kept in memory between passes
+    /// ([`SequenceConfig::decoded_cache_mib`]).
+    pub fn decoded_frames_kept(&self) -> usize {
+        self.decoded.kept.lock().map_or(0, |k| k.1.len())
+    }
+
+    /// The depth (metres) of frame `i`: from the decoded frames kept between passes when
+    /// there, else read from its file (without keeping it).
+    pub fn load_depth(&self, i: usize) -> Result<dynapix_io::DepthImage> {
+        if let Some(f) = self.decoded.get(i) {
+            return Ok(f.1.clone());
+        }
+        let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
+        Ok(dynapix_io::images::read_depth(
+            &self.sequence.frames[i].depth,
+            self.sequence.depth_factor,
+        )?)
     }
 
     /// The frames whose files cannot be used, in frame order, when this input skips them

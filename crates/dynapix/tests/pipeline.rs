@@ -95,6 +95,36 @@ fn offline(config: &Config, input: &Input, cache: &Path) -> dynapix::OfflineOutp
 }
 
 #[test]
+fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
+    let seq = sequence();
+    let mut config = Config::default();
+    let fresh = open(seq, &config);
+    let kept = open(seq, &config);
+    for i in 0..kept.len() {
+        kept.load_rgbd(i).unwrap();
+    }
+    // 120 frames of 320×240 (rgb 225 KiB + depth 300 KiB) fit the default 1 GiB.
+    assert_eq!(kept.decoded_frames_kept(), kept.len());
+    for i in [0, 7, kept.len() - 1] {
+        let (a, b) = (kept.load_rgbd(i).unwrap(), fresh.load_rgbd(i).unwrap());
+        assert!(a.0 == b.0 && a.1 == b.1, "frame {i} differs when read back");
+        assert!(kept.load_depth(i).unwrap() == b.1, "depth of frame {i}");
+    }
+    // One MiB holds one frame; the first one read is kept.
+    config.sequence.decoded_cache_mib = 1;
+    let small = open(seq, &config);
+    for i in 3..6 {
+        small.load_rgbd(i).unwrap();
+    }
+    assert_eq!(small.decoded_frames_kept(), 1);
+    assert!(small.load_depth(4).unwrap() == fresh.load_depth(4).unwrap());
+    config.sequence.decoded_cache_mib = 0;
+    let none = open(seq, &config);
+    none.load_rgbd(0).unwrap();
+    assert_eq!(none.decoded_frames_kept(), 0);
+}
+
+#[test]
 fn weighted_offline_run_beats_orbslam2() {
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");
