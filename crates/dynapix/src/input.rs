@@ -189,16 +189,15 @@ pub struct Input {
     decoded: DecodedFrames,
 }
 
+/// One decoded frame: colour image and depth (metres).
+type DecodedFrame = Arc<(RgbImage, dynapix_io::DepthImage)>;
+
 /// Decoded frames kept in memory up to a byte budget, first read first kept.
 #[derive(Clone)]
 struct DecodedFrames {
     budget: usize,
-    kept: Arc<
-        Mutex<(
-            usize,
-            HashMap<usize, Arc<(RgbImage, dynapix_io::DepthImage)>>,
-        )>,
-    >,
+    /// Bytes used and the frames kept, by index.
+    kept: Arc<Mutex<(usize, HashMap<usize, DecodedFrame>)>>,
 }
 
 impl std::fmt::Debug for DecodedFrames {
@@ -220,7 +219,7 @@ impl DecodedFrames {
         }
     }
 
-    fn get(&self, i: usize) -> Option<Arc<(RgbImage, dynapix_io::DepthImage)>> {
+    fn get(&self, i: usize) -> Option<DecodedFrame> {
         self.kept.lock().ok()?.1.get(&i).cloned()
     }
 
