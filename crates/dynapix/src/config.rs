@@ -61,8 +61,9 @@ pub struct SequenceConfig {
     /// another size) is skipped: recorded lost, no motion map, SLAM goes on with the next
     /// frame, and the run lists it. Off: the run stops at that frame with an error naming it.
     pub skip_bad_frames: bool,
-    /// Memory (MiB) for decoded frames kept between the passes of a run, so each frame's
-    /// images are decoded once instead of once per pass (0: decode every time). Frames are
+    /// Memory (MiB) for decoded frames kept between the passes of an offline DynaPix run, so
+    /// each frame's images are decoded once instead of once per pass (0: decode every time;
+    /// single-pass runs and the online mode keep nothing). Frames are
     /// kept in the order they are first read until the budget is spent (a pass reads the
     /// sequence in order, so a least-recently-used policy would keep nothing useful).
     pub decoded_cache_mib: usize,

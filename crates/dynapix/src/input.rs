@@ -196,6 +196,8 @@ type DecodedFrame = Arc<(RgbImage, dynapix_io::DepthImage)>;
 #[derive(Clone)]
 struct DecodedFrames {
     budget: usize,
+    /// Off until a multi-pass run asks for it ([`Input::keep_decoded_frames`]).
+    enabled: Arc<std::sync::atomic::AtomicBool>,
     /// Bytes used and the frames kept, by index.
     kept: Arc<Mutex<(usize, HashMap<usize, DecodedFrame>)>>,
 }
@@ -215,6 +217,7 @@ impl DecodedFrames {
     fn new(budget_mib: usize) -> Self {
         Self {
             budget: budget_mib.saturating_mul(1 << 20),
+            enabled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
             kept: Arc::new(Mutex::new((0, HashMap::new()))),
         }
     }
@@ -225,6 +228,9 @@ impl DecodedFrames {
 
     /// Keeps frame `i` when it fits the budget.
     fn offer(&self, i: usize, rgb: &RgbImage, depth: &dynapix_io::DepthImage) {
+        if !self.enabled.load(std::sync::atomic::Ordering::Relaxed) {
+            return;
+        }
         let bytes = rgb.as_raw().len() + std::mem::size_of_val(depth.as_raw().as_slice());
         let Ok(mut k) = self.kept.lock() else { return };
         if k.1.contains_key(&i) || k.0 + bytes > self.budget {
@@ -415,6 +421,19 @@ impl Input {
         }
         self.decoded.offer(i, &rgb, &depth);
         Ok((rgb, depth))
+    }
+
+    /// Starts (`true`) or stops keeping decoded frames in memory up to the budget
+    /// [`SequenceConfig::decoded_cache_mib`]; stopping frees them. Off after
+    /// [`Input::open`]: the offline runner turns it on for the runs that read the frames more
+    /// than once (every DynaPix run) and off at their end.
+    pub fn keep_decoded_frames(&self, on: bool) {
+        self.decoded
+            .enabled
+            .store(on, std::sync::atomic::Ordering::Relaxed);
+        if !on && let Ok(mut k) = self.decoded.kept.lock() {
+            *k = (0, HashMap::new());
+        }
     }
 
     /// Number of decoded frames kept in memory between passes

@@ -381,6 +381,18 @@ impl<'a> OfflineRunner<'a> {
     /// [`OfflineRunner::run`] whose final pass uses relocalisation seed `seed` (run k of a
     /// multi-run experiment uses `seed + k`; the first pass and maps do not depend on it).
     pub fn run_with_seed(&self, seed: u64, progress: &dyn Progress) -> Result<OfflineOutput> {
+        // Every DynaPix run reads each frame several times (rigidity maps, passes, geometric
+        // depths): decode once, keep them for the run, free them at its end.
+        let multi_pass = self.config.method.terms().is_some();
+        self.input.keep_decoded_frames(multi_pass);
+        let out = self.run_passes(seed, progress);
+        if multi_pass {
+            self.input.keep_decoded_frames(false);
+        }
+        out
+    }
+
+    fn run_passes(&self, seed: u64, progress: &dyn Progress) -> Result<OfflineOutput> {
         let method = self.config.method;
         let mut record = self.base_record();
         if method.terms().is_none() {

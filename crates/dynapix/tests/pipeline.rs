@@ -100,6 +100,10 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
     let mut config = Config::default();
     let fresh = open(seq, &config);
     let kept = open(seq, &config);
+    // Nothing is kept until a run asks for it.
+    kept.load_rgbd(0).unwrap();
+    assert_eq!(kept.decoded_frames_kept(), 0);
+    kept.keep_decoded_frames(true);
     for i in 0..kept.len() {
         kept.load_rgbd(i).unwrap();
     }
@@ -113,6 +117,7 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
     // One MiB holds one frame; the first one read is kept.
     config.sequence.decoded_cache_mib = 1;
     let small = open(seq, &config);
+    small.keep_decoded_frames(true);
     for i in 3..6 {
         small.load_rgbd(i).unwrap();
     }
@@ -120,8 +125,12 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
     assert!(small.load_depth(4).unwrap() == fresh.load_depth(4).unwrap());
     config.sequence.decoded_cache_mib = 0;
     let none = open(seq, &config);
+    none.keep_decoded_frames(true);
     none.load_rgbd(0).unwrap();
     assert_eq!(none.decoded_frames_kept(), 0);
+    // Stopping frees what was kept.
+    kept.keep_decoded_frames(false);
+    assert_eq!(kept.decoded_frames_kept(), 0);
 }
 
 #[test]
