@@ -84,4 +84,22 @@ fn flow_cli_reports_bad_input() {
         "{err}"
     );
     assert!(!dir.path().join("o.flo").exists());
+    // A saturation of 0 (or not a number) is refused before any work.
+    for bad in ["0", "-1", "nan"] {
+        let o = bin()
+            .arg("flow")
+            .arg(dir.path().join("a.png"))
+            .arg(dir.path().join("a.png"))
+            .arg("--out")
+            .arg(dir.path().join("o.flo"))
+            .args(["--viz"])
+            .arg(dir.path().join("o.png"))
+            .arg(format!("--viz-max={bad}"))
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "--viz-max {bad}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--viz-max must be a positive"), "{err}");
+        assert!(!dir.path().join("o.flo").exists());
+    }
 }

@@ -39,6 +39,11 @@ fn load_gray(path: &Path) -> anyhow::Result<image::GrayImage> {
 /// Runs `dynapix flow`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let preset: Preset = args.preset.preset();
+    if let Some(m) = args.viz_max
+        && !(m.is_finite() && m > 0.0)
+    {
+        bail!("--viz-max must be a positive number of pixels, got {m}");
+    }
     let a = load_gray(&args.a)?;
     let b = load_gray(&args.b)?;
     if a.dimensions() != b.dimensions() {
