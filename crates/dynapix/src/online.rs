@@ -331,13 +331,26 @@ impl OnlineDynaPix {
                     noisy_or(&mut p, paper.as_image())?;
                     background = Some(bg);
                 }
-                if let Some(g) = &gray {
-                    noisy_or(&mut p, &self.rigidity(index, g, &images.depth)?)?;
+                // The two cues are independent: compute them side by side, combine in order.
+                let (rigid, geometric) = rayon::join(
+                    || {
+                        gray.as_ref()
+                            .map(|g| self.rigidity(index, g, &images.depth))
+                            .transpose()
+                    },
+                    || {
+                        working
+                            .as_ref()
+                            .filter(|_| cues.geometric)
+                            .map(|w| self.geometric(index, w, &t_wc))
+                            .transpose()
+                    },
+                );
+                if let Some(r) = rigid? {
+                    noisy_or(&mut p, &r)?;
                 }
-                if cues.geometric
-                    && let Some(w) = &working
-                {
-                    noisy_or(&mut p, &self.geometric(index, w, &t_wc)?)?;
+                if let Some(g) = geometric? {
+                    noisy_or(&mut p, &g)?;
                 }
                 let p = MotionProbability::new(p);
                 let bg = background;
