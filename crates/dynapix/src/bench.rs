@@ -18,7 +18,8 @@ use crate::online::{OnlineDynaPix, RgbdFrame};
 use crate::profile::{Profile, StageProfiler, process_usage};
 use crate::progress::{Progress, Task};
 
-/// Per-frame latency of an online bench (milliseconds from `push` to its result).
+/// Per-frame latency of an online bench: milliseconds spent in each `push` (the processing of
+/// the frame it releases: the pushed one, or with a lookahead the one pushed K frames before).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Latency {
     /// Mean.
@@ -262,26 +263,30 @@ pub fn bench_online(
     let clock = Clock::start(profiler);
     let label = format!("{} online", config.method);
     let task = Task::begin(progress, &label, input.len());
-    let mut latency = Vec::with_capacity(input.len());
-    let mut results = Vec::with_capacity(input.len());
-    for i in 0..input.len() {
-        let (rgb, depth) = input.load_rgbd(i)?;
-        let t = input.sequence.frames[i].t;
-        let started = Instant::now();
-        let r = online.push(RgbdFrame::new(t, rgb, depth));
-        latency.push(started.elapsed().as_secs_f64() * 1e3);
-        match r {
-            Ok(Some(r)) => results.push(r),
-            Ok(None) => {}
-            Err(e) => {
-                profiler.stop();
-                return Err(e);
-            }
+    let mut feed = || -> Result<(Vec<f64>, Vec<crate::online::FrameResult>)> {
+        let mut latency = Vec::with_capacity(input.len());
+        let mut results = Vec::with_capacity(input.len());
+        for i in 0..input.len() {
+            let (rgb, depth) = input.load_rgbd(i)?;
+            let t = input.sequence.frames[i].t;
+            let started = Instant::now();
+            let r = online.push(RgbdFrame::new(t, rgb, depth))?;
+            latency.push(started.elapsed().as_secs_f64() * 1e3);
+            results.extend(r);
+            task.step("");
         }
-        task.step("");
-    }
-    results.extend(online.finish()?);
+        results.extend(online.finish()?);
+        Ok((latency, results))
+    };
+    let fed = feed();
     drop(task);
+    let (latency, results) = match fed {
+        Ok(x) => x,
+        Err(e) => {
+            profiler.stop();
+            return Err(e);
+        }
+    };
     let tracked = results
         .iter()
         .filter(|r| r.status == dynapix_io::FrameStatus::Tracked)
