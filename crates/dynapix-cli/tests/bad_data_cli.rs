@@ -70,9 +70,10 @@ fn broken_sequence(dir: &Path) -> PathBuf {
     seq
 }
 
-fn slam(seq: &Path, out: &Path, extra: &[&str]) -> Output {
+/// `dynapix COMMAND SEQ --quiet --out OUT EXTRA…`.
+fn command(name: &str, seq: &Path, out: &Path, extra: &[&str]) -> Output {
     bin()
-        .arg("slam")
+        .arg(name)
         .arg(seq)
         .args(["--quiet", "--out"])
         .arg(out)
@@ -81,15 +82,12 @@ fn slam(seq: &Path, out: &Path, extra: &[&str]) -> Output {
         .unwrap()
 }
 
+fn slam(seq: &Path, out: &Path, extra: &[&str]) -> Output {
+    command("slam", seq, out, extra)
+}
+
 fn run(seq: &Path, out: &Path, extra: &[&str]) -> Output {
-    bin()
-        .arg("run")
-        .arg(seq)
-        .args(["--quiet", "--out"])
-        .arg(out)
-        .args(extra)
-        .output()
-        .unwrap()
+    command("run", seq, out, extra)
 }
 
 /// Checks a stopped run: the error names frame 8, its time and file; the trajectory and the
