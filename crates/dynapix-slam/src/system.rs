@@ -15,9 +15,10 @@ use dynapix_io::StaticWeights;
 use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid};
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::loop_closing::{LoopCloser, LoopClosingParams, LoopEvent};
-use crate::map::{KeyFrameId, Map, MapParams};
+use crate::map::{KeyFrameId, Map, MapParams, MapPointId};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
 use crate::vocab::Vocabulary;
+use dynapix_optim::Observation;
 
 /// Produces keypoints (level-0 image coordinates) and descriptors from a grey image.
 pub trait FeatureExtractor {
@@ -57,6 +58,12 @@ pub struct SystemParams {
     /// adjustment over every keyframe and map point (see [`System::finish`]). ORB-SLAM2 runs a
     /// global BA only after a loop; off in ORB-SLAM2 mode.
     pub final_global_ba: bool,
+    /// Offline refinement of every tracked frame that is not a keyframe, at the end of a
+    /// sequence (see [`System::finish`]): its pose is optimised again (pose-only, weighted,
+    /// with the outlier rounds of tracking) against the final positions of the map points it
+    /// was tracked with, leaving out the points that were culled since (e.g. removed because
+    /// they started moving). Off in ORB-SLAM2 mode.
+    pub final_pose_refinement: bool,
 }
 
 /// One input frame.
@@ -168,6 +175,37 @@ struct Record {
     relative: Option<(KeyFrameId, Se3)>,
     /// Absolute `T_cw` frozen at a map reset.
     frozen: Option<Se3>,
+    /// The frame's inlier map-point matches (kept with
+    /// [`SystemParams::final_pose_refinement`] for frames that are not keyframes).
+    matches: Vec<(MapPointId, Observation)>,
+}
+
+/// Fewest surviving matches (and inliers) for [`System::refine_frame_poses`] to replace a
+/// frame's pose (ORB-SLAM2's bar for a tracked frame, 30 inliers).
+pub const MIN_REFINE_MATCHES: usize = 30;
+
+/// A tracked frame's inlier map-point matches as pose-only observations.
+fn frame_matches(f: &Frame, map: &Map) -> Vec<(MapPointId, Observation)> {
+    let pyr = &map.pyramid;
+    (0..f.len())
+        .filter_map(|i| {
+            let id = f.map_points[i]?;
+            if f.outlier[i] {
+                return None;
+            }
+            let kp = &f.keys_un[i];
+            let ur = f.u_right[i];
+            Some((
+                id,
+                Observation {
+                    uv: [kp.x as f64, kp.y as f64],
+                    u_right: (ur >= 0.0).then_some(ur as f64),
+                    inv_sigma2: pyr.inv_sigma2_of(kp.octave as usize) as f64,
+                    weight: f.weights[i] as f64,
+                },
+            ))
+        })
+        .collect()
 }
 
 /// The SLAM system.
@@ -188,6 +226,10 @@ pub struct System<E> {
     static_features_min_weight: Option<f32>,
     /// See [`SystemParams::final_global_ba`].
     final_global_ba: bool,
+    /// See [`SystemParams::final_pose_refinement`].
+    final_pose_refinement: bool,
+    /// Pose-only parameters of the final refinement (tracking's, with the map's weight mode).
+    refine_params: dynapix_optim::PoseOnlyParams,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -208,6 +250,8 @@ impl<E: FeatureExtractor> System<E> {
             localization: false,
             static_features_min_weight: params.static_features_min_weight,
             final_global_ba: params.final_global_ba,
+            final_pose_refinement: params.final_pose_refinement,
+            refine_params: crate::dynapix::pose_params(&params.tracking.pose, &params.map.dynapix),
         }
     }
 
@@ -215,7 +259,19 @@ impl<E: FeatureExtractor> System<E> {
     /// global bundle adjustment over the whole map, after which [`System::trajectory`] reports
     /// every frame relative to its refined reference keyframe. Returns the BA's counters
     /// (`None` when it is off, in localisation mode, or the map is empty).
+    ///
+    /// With [`SystemParams::final_pose_refinement`], afterwards every tracked non-keyframe
+    /// frame is re-optimised against the final map ([`System::refine_frame_poses`]).
     pub fn finish(&mut self) -> Option<crate::loop_closing::correct::global_ba::Output> {
+        let ba = self.final_global_ba();
+        if self.final_pose_refinement && !self.localization {
+            let n = self.refine_frame_poses();
+            tracing::info!("final pose refinement: {n} frames re-optimised against the final map");
+        }
+        ba
+    }
+
+    fn final_global_ba(&mut self) -> Option<crate::loop_closing::correct::global_ba::Output> {
         if !self.final_global_ba || self.localization || self.map.num_keyframes() < 2 {
             return None;
         }
@@ -387,6 +443,15 @@ impl<E: FeatureExtractor> System<E> {
             }
             _ => None,
         };
+        let matches =
+            if self.final_pose_refinement && relative.is_some() && out.new_keyframe.is_none() {
+                self.tracker
+                    .last_frame()
+                    .map(|f| frame_matches(f, &self.map))
+                    .unwrap_or_default()
+            } else {
+                Vec::new()
+            };
         drop(stage);
         let mut mapping = None;
         if let Some(kf) = out.new_keyframe {
@@ -416,6 +481,7 @@ impl<E: FeatureExtractor> System<E> {
             state: out.state,
             relative,
             frozen: None,
+            matches,
         });
         Ok(FrameResult {
             index,
@@ -446,7 +512,51 @@ impl<E: FeatureExtractor> System<E> {
                 r.frozen = self.map.keyframe_pose(k).map(|kp| tcr * kp);
             }
             r.relative = None;
+            r.matches = Vec::new();
         }
+    }
+
+    /// Re-optimises every tracked frame that kept its matches (see
+    /// [`SystemParams::final_pose_refinement`]) against the current map: pose-only, weighted,
+    /// with tracking's outlier rounds, starting from the frame's current estimate. Matches to
+    /// points culled or never added to the map are left out; a frame with fewer than
+    /// [`MIN_REFINE_MATCHES`] surviving matches, or fewer inliers after the optimisation,
+    /// keeps its pose. Returns the number of frames whose pose was replaced.
+    pub fn refine_frame_poses(&mut self) -> usize {
+        let camera = crate::tracking::stereo_camera(&self.cam);
+        let mut n = 0;
+        for r in self.records.iter_mut() {
+            let matches = std::mem::take(&mut r.matches);
+            let Some((k, tcr)) = r.relative else { continue };
+            let Some(kp) = self.map.keyframe_pose(k) else {
+                continue;
+            };
+            let (points, observations): (Vec<_>, Vec<_>) = matches
+                .iter()
+                .filter_map(|(id, o)| {
+                    let id = self.map.resolve(*id)?;
+                    let p = self.map.point(id)?;
+                    (p.num_obs > 0).then_some((p.position, *o))
+                })
+                .unzip();
+            if points.len() < MIN_REFINE_MATCHES {
+                continue;
+            }
+            let problem = dynapix_optim::PoseOnlyProblem {
+                camera,
+                pose: tcr * kp,
+                points,
+                observations,
+            };
+            let res = dynapix_optim::optimize_pose(&problem, &self.refine_params);
+            if res.num_inliers < MIN_REFINE_MATCHES {
+                continue;
+            }
+            let tcw = crate::frame::normalized(&res.pose);
+            r.relative = Some((k, tcw * kp.inverse()));
+            n += 1;
+        }
+        n
     }
 
     /// The trajectory so far, one entry per processed frame, with the current (BA-refined)
@@ -498,6 +608,100 @@ mod tests {
         let pinhole = PinholeCamera::new(64, 48, 50.0, 50.0, 32.0, 24.0);
         let cam = RgbdCamera::new(pinhole, 40.0, 40.0, 30.0);
         System::new(OrbExtractor::default(), cam, SystemParams::default())
+    }
+
+    /// 40 frames of the synthetic `static` preset at 320×240 through a system with the final
+    /// pose refinement, and the system.
+    fn refined_run() -> System<OrbExtractor> {
+        use image::Luma;
+        let full = PinholeCamera::tum_fr3();
+        let s = 0.5;
+        let pin = PinholeCamera::new(320, 240, full.fx * s, full.fy * s, full.cx * s, full.cy * s);
+        let params = dynapix_synth::SynthParams {
+            preset: "static".parse().expect("preset"),
+            frames: 40,
+            seed: 0,
+            scene: dynapix_synth::SceneParams::for_width(pin.width),
+            camera: pin.clone(),
+            ..dynapix_synth::SynthParams::default()
+        };
+        let seq = dynapix_synth::Sequence::new(params).expect("sequence");
+        let st = dynapix_synth::output::camera_settings(&pin, seq.params.fps);
+        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        let params = SystemParams {
+            final_pose_refinement: true,
+            ..SystemParams::default()
+        };
+        let mut sys = System::new(OrbExtractor::default(), cam, params);
+        for i in 0..40 {
+            let (f, _) = seq.frame(i, None);
+            let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
+            let depth = DepthImage::from_fn(f.depth.width(), f.depth.height(), |x, y| {
+                Luma([f.depth.get_pixel(x, y)[0] as f32 / dynapix_synth::sequence::DEPTH_FACTOR])
+            });
+            sys.process(FrameInput {
+                timestamp: seq.time(i),
+                gray: &gray,
+                depth: &depth,
+                weights: None,
+                masks: None,
+            })
+            .expect("frame");
+        }
+        sys
+    }
+
+    fn positions(sys: &System<OrbExtractor>) -> Vec<Option<nalgebra::Vector3<f64>>> {
+        sys.trajectory()
+            .iter()
+            .map(|e| e.pose_wc.map(|p| p.translation.vector))
+            .collect()
+    }
+
+    #[test]
+    fn final_pose_refinement_pulls_a_wrong_frame_pose_back_to_the_map() {
+        let mut sys = refined_run();
+        let before = positions(&sys);
+        assert!(before.iter().all(Option::is_some), "every frame tracked");
+        // Move every frame that kept its matches by 3 cm: refinement must bring it back.
+        let shift = Se3::translation(0.03, 0.0, 0.0);
+        let mut moved = 0;
+        for r in sys.records.iter_mut() {
+            if let (Some((k, tcr)), false) = (r.relative, r.matches.is_empty()) {
+                r.relative = Some((k, shift * tcr));
+                moved += 1;
+            }
+        }
+        assert!(moved >= 20, "{moved} frames kept matches");
+        let refined = sys.refine_frame_poses();
+        assert_eq!(refined, moved, "every moved frame is refined");
+        let after = positions(&sys);
+        let worst = before
+            .iter()
+            .zip(&after)
+            .map(|(a, b)| (a.unwrap() - b.unwrap()).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 0.003,
+            "a frame stayed {worst} m from its tracked pose"
+        );
+        // The matches are used once: a second call changes nothing.
+        assert_eq!(sys.refine_frame_poses(), 0);
+    }
+
+    #[test]
+    fn final_pose_refinement_leaves_out_points_culled_since() {
+        let mut sys = refined_run();
+        let before = positions(&sys);
+        for id in sys.map.point_ids() {
+            sys.map.cull_point(id);
+        }
+        assert_eq!(
+            sys.refine_frame_poses(),
+            0,
+            "no surviving point, no refinement"
+        );
+        assert_eq!(positions(&sys), before);
     }
 
     #[test]

@@ -381,6 +381,11 @@ impl Tracker {
         }
     }
 
+    /// The last frame tracking saw, with its map-point matches as tracking left them.
+    pub(crate) fn last_frame(&self) -> Option<&Frame> {
+        self.last_frame.as_ref()
+    }
+
     fn record_last(&mut self, map: &Map, frame: Frame) {
         self.last_relative = match (frame.reference, frame.pose) {
             (Some(r), Some(p)) => map.keyframe_pose(r).map(|rp| (r, p * rp.inverse())),

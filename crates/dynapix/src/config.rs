@@ -697,6 +697,8 @@ impl Config {
             // ORB-SLAM2 mode is ORB-SLAM2: no static-feature mask, no predicted tracking.
             p.static_features_min_weight = None;
             p.tracking.predicted_frames = 0;
+            p.final_global_ba = false;
+            p.final_pose_refinement = false;
         }
         p
     }
