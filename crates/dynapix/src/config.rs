@@ -424,12 +424,15 @@ impl Config {
     /// paper's weighting: keypoints are extracted only where w ≥ 0.5 (a frame's feature
     /// budget is not spent on people), and when every tracking method fails the local map is
     /// tracked from the constant-velocity prediction for up to 30 frames (a crowd in front of
-    /// the camera does not lose it). Reference mode keeps ORB-SLAM2's behaviour.
+    /// the camera does not lose it). Offline, at the end of each pass every tracked frame
+    /// that is not a keyframe is optimised again against the final map, without the points
+    /// culled since (`final_pose_refinement`). Reference mode keeps ORB-SLAM2's behaviour.
     pub fn slam_defaults(mode: Mode) -> SystemParams {
         let mut p = SystemParams::default().with_dynapix(DynaPixParams::new(mode.weighting()));
         if mode == Mode::Paper {
             p.static_features_min_weight = Some(0.5);
             p.tracking.predicted_frames = 30;
+            p.final_pose_refinement = true;
         }
         p
     }

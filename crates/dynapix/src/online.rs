@@ -42,7 +42,7 @@ use dynapix_motion::{
     Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
 };
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::system::{FrameInput, System};
+use dynapix_slam::system::{FrameInput, System, SystemParams};
 use image::{GrayImage, RgbImage};
 
 use crate::config::{Config, Cues};
@@ -152,7 +152,13 @@ impl OnlineDynaPix {
         });
         let vocabulary = load_vocabulary(&config.slam.vocabulary)?;
         let extractor = OrbExtractor::new(camera.orb_params()?)?;
-        let mut system = System::new(extractor, camera.rgbd(), config.system_params());
+        // Online there is no end of the sequence to refine at: nothing is kept for it.
+        let system_params = SystemParams {
+            final_pose_refinement: false,
+            final_global_ba: false,
+            ..config.system_params()
+        };
+        let mut system = System::new(extractor, camera.rgbd(), system_params);
         if let Some(v) = vocabulary {
             system = system.with_vocabulary(v);
         }
