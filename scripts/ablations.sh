@@ -19,7 +19,7 @@ name=$(basename "$SEQ")
 mkdir -p "$OUT/runs/$name" "$OUT/config"
 cat > "$OUT/config/shipped.yaml" <<'YAML'
 # DynaPix as shipped before the real-data work: the paper's terms, ORB-SLAM2 first pass, one
-# weighted pass, no static-feature mask, no predicted tracking.
+# weighted pass, no static-feature mask, no predicted tracking, no final pose refinement.
 motion:
   cues: {paper: true, geometric: false, rigidity: false}
 passes: {first: orbslam2, weighted: 1}
@@ -27,9 +27,11 @@ slam:
   params:
     static_features_min_weight: null
     tracking: {predicted_frames: 0}
+    final_pose_refinement: false
 YAML
 echo 'slam: {params: {static_features_min_weight: null}}' > "$OUT/config/no_static_features.yaml"
 echo 'slam: {params: {tracking: {predicted_frames: 0}}}' > "$OUT/config/no_predicted.yaml"
+echo 'slam: {params: {final_pose_refinement: false}}' > "$OUT/config/no_final_refinement.yaml"
 declare -A ROWS=(
   [orbslam2]="--method orbslam2"
   [dynapix_shipped]="--method dynapix --config $OUT/config/shipped.yaml"
@@ -42,9 +44,10 @@ declare -A ROWS=(
   [three_passes]="--method dynapix --passes 3"
   [no_static_features]="--method dynapix --config $OUT/config/no_static_features.yaml"
   [no_predicted_tracking]="--method dynapix --config $OUT/config/no_predicted.yaml"
+  [no_final_refinement]="--method dynapix --config $OUT/config/no_final_refinement.yaml"
   [oracle_poses]="--method dynapix --oracle-poses"
 )
-ORDER="orbslam2 dynapix_shipped dynapix plus_paper_terms no_geometric no_rigidity_cue orbslam2_first_pass one_pass three_passes no_static_features no_predicted_tracking oracle_poses"
+ORDER="orbslam2 dynapix_shipped dynapix plus_paper_terms no_geometric no_rigidity_cue orbslam2_first_pass one_pass three_passes no_static_features no_predicted_tracking no_final_refinement oracle_poses"
 for row in ${*:-$ORDER}; do
   dir="$OUT/runs/$name/$row"
   [ -f "$dir/run.json" ] && continue
