@@ -265,6 +265,8 @@ impl<E: FeatureExtractor> System<E> {
     pub fn finish(&mut self) -> Option<crate::loop_closing::correct::global_ba::Output> {
         let ba = self.final_global_ba();
         if self.final_pose_refinement && !self.localization {
+            let _stage =
+                tracing::info_span!(target: "dynapix::stage", "final pose refinement").entered();
             let n = self.refine_frame_poses();
             tracing::info!("final pose refinement: {n} frames re-optimised against the final map");
         }
