@@ -771,6 +771,18 @@ mod tests {
         assert_eq!(orb.map.dynapix.weighting, Weighting::Off);
         assert_eq!(p.system_params().static_features_min_weight, Some(0.5));
         assert_eq!(p.system_params().tracking.predicted_frames, 30);
+        // The final refinements are offline DynaPix only.
+        assert!(p.system_params().final_pose_refinement);
+        assert!(!orb.final_pose_refinement && !orb.final_global_ba);
+        let mut all = p.clone();
+        all.slam.params.final_global_ba = true;
+        let orb_all = all.with_method(Method::Orbslam2).system_params();
+        assert!(!orb_all.final_pose_refinement && !orb_all.final_global_ba);
+        assert!(
+            !Config::new(Mode::Reference)
+                .system_params()
+                .final_pose_refinement
+        );
         assert_eq!(p.passes.first, FirstPass::Rigidity);
         assert!(p.cues().geometric && p.cues().rigidity);
         let r = Config::new(Mode::Reference);
