@@ -644,14 +644,19 @@ impl Map {
             return;
         }
         let n = descs.len();
-        let mut best = (u32::MAX, 0usize);
-        let mut row = vec![0u32; n];
+        // The distance matrix is symmetric: each pair is computed once, and the median of a
+        // row is selected, not sorted for (same value, so the same descriptor is chosen).
+        let mut dist = vec![0u32; n * n];
         for i in 0..n {
-            for (j, r) in row.iter_mut().enumerate() {
-                *r = hamming(&descs[i], &descs[j]);
+            for j in i + 1..n {
+                let d = hamming(&descs[i], &descs[j]);
+                dist[i * n + j] = d;
+                dist[j * n + i] = d;
             }
-            row.sort_unstable();
-            let median = row[(n - 1) / 2];
+        }
+        let mut best = (u32::MAX, 0usize);
+        for (i, row) in dist.chunks_exact_mut(n).enumerate() {
+            let (_, &mut median, _) = row.select_nth_unstable((n - 1) / 2);
             if median < best.0 {
                 best = (median, i);
             }
