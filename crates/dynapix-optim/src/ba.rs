@@ -90,6 +90,13 @@ struct Chunk {
     cost: f64,
     new_cost: f64,
     pred: f64,
+    /// The active edges on free poses with a non-zero weight, `(pose variable, local edge)`,
+    /// of local point `lp` at `free[free_start[lp]..free_start[lp + 1]]` (set by
+    /// [`Chunk::linearize`]; the only edges of the reduced system).
+    free: Vec<(usize, usize)>,
+    free_start: Vec<usize>,
+    /// Scratch of [`Chunk::reduce`]: `W V⁻¹` of one point's free edges.
+    ys: Vec<Matrix6x3<f64>>,
 }
 
 impl Chunk {
@@ -115,6 +122,9 @@ impl Chunk {
             cost: 0.0,
             new_cost: 0.0,
             pred: 0.0,
+            free: Vec::with_capacity(ne),
+            free_start: Vec::with_capacity(np + 1),
+            ys: Vec::new(),
         }
     }
 
@@ -130,6 +140,9 @@ impl Chunk {
         self.cost = 0.0;
         self.a.iter_mut().for_each(|m| *m = Matrix6::zeros());
         self.gc.iter_mut().for_each(|m| *m = Vector6::zeros());
+        self.free.clear();
+        self.free_start.clear();
+        self.free_start.push(0);
         for (lp, p) in self.points.clone().enumerate() {
             let mut v = Matrix3::zeros();
             let mut gp = Vector3::zeros();
@@ -162,9 +175,13 @@ impl Chunk {
                     self.a[k] += edge::ata_3x6(&jc, s);
                     self.gc[k] += s * jc.transpose() * r;
                     self.w[le] = edge::atb_3x6_3x3(&jc, &jp, s);
+                    if s != 0.0 {
+                        self.free.push((k, le));
+                    }
                 }
                 self.s[le] = s;
             }
+            self.free_start.push(self.free.len());
             self.v[lp] = v;
             self.gp[lp] = gp;
         }
@@ -175,7 +192,8 @@ impl Chunk {
         self.schur.iter_mut().for_each(|m| *m = Matrix6::zeros());
         let nv = ctx.n_vars;
         self.rhs.fill(0.0);
-        for (lp, p) in self.points.clone().enumerate() {
+        let mut ys = std::mem::take(&mut self.ys);
+        for lp in 0..self.points.len() {
             let damped = self.v[lp] + Matrix3::identity() * lambda;
             // A point whose block cannot be inverted is left where it is for this step.
             let vinv = damped
@@ -183,52 +201,41 @@ impl Chunk {
                 .filter(|m| m.iter().all(|x| x.is_finite()))
                 .unwrap_or_else(Matrix3::zeros);
             self.vinv[lp] = vinv;
-            let range = ctx.point_start[p]..ctx.point_start[p + 1];
-            for e in range.clone() {
-                let le = e - self.edge_offset;
-                if self.s[le] == 0.0 {
-                    continue;
-                }
-                let Some(va) = ctx.edges[e].var else { continue };
+            // `Y = W V⁻¹` of the point's active edges on free poses.
+            let free = &self.free[self.free_start[lp]..self.free_start[lp + 1]];
+            ys.clear();
+            for &(va, le) in free {
                 let y = self.w[le] * vinv;
                 let mut rhs = self.rhs.fixed_rows_mut::<6>(6 * va);
                 rhs += y * self.gp[lp];
-                // Pairs (e, f) with f ≥ e; the block of (f, e) is the transpose.
-                for f in e..range.end {
-                    let lf = f - self.edge_offset;
-                    if self.s[lf] == 0.0 {
-                        continue;
-                    }
-                    let Some(vb) = ctx.edges[f].var else { continue };
-                    let block = edge::mul_abt_6x3(&y, &self.w[lf]);
-                    // (f, e) contributes the transpose; keep only the upper blocks.
-                    if f == e {
-                        self.schur[va * nv + va] -= block;
-                    } else if va < vb {
-                        self.schur[va * nv + vb] -= block;
+                ys.push(y);
+            }
+            // Pairs (e, f) with f ≥ e, in edge order; the block of (f, e) is the transpose.
+            for (i, (&(va, _), y)) in free.iter().zip(&ys).enumerate() {
+                for (j, &(vb, lf)) in free.iter().enumerate().skip(i) {
+                    let wf = &self.w[lf];
+                    // Keep only the upper blocks: `(a, b)` takes `Y_e W_fᵀ` or its transpose.
+                    if j == i || va < vb {
+                        edge::sub_abt_6x3(&mut self.schur[va * nv + vb], y, wf);
                     } else if va > vb {
-                        self.schur[vb * nv + va] -= block.transpose();
+                        edge::sub_abt_6x3(&mut self.schur[vb * nv + va], wf, y);
                     } else {
+                        let block = edge::mul_abt_6x3(y, wf);
                         self.schur[va * nv + va] -= block + block.transpose();
                     }
                 }
             }
         }
+        self.ys = ys;
     }
 
     /// Point steps `δp = V⁻¹(−g_p − Wᵀδc)` and this chunk's part of the predicted decrease.
-    fn back_substitute(&mut self, ctx: &Ctx, dc: &DVector<f64>, lambda: f64) {
+    fn back_substitute(&mut self, dc: &DVector<f64>, lambda: f64) {
         self.pred = 0.0;
-        for (lp, p) in self.points.clone().enumerate() {
+        for lp in 0..self.points.len() {
             let mut t = -self.gp[lp];
-            for e in ctx.point_start[p]..ctx.point_start[p + 1] {
-                let le = e - self.edge_offset;
-                if self.s[le] == 0.0 {
-                    continue;
-                }
-                if let Some(k) = ctx.edges[e].var {
-                    t -= self.w[le].transpose() * dc.fixed_rows::<6>(6 * k);
-                }
+            for &(k, le) in &self.free[self.free_start[lp]..self.free_start[lp + 1]] {
+                t -= self.w[le].transpose() * dc.fixed_rows::<6>(6 * k);
             }
             let dp = self.vinv[lp] * t;
             self.dp[lp] = dp;
@@ -505,7 +512,7 @@ impl Lm<'_, '_> {
                 };
                 self.chunks
                     .par_iter_mut()
-                    .for_each(|c| c.back_substitute(ctx, &dc, lambda));
+                    .for_each(|c| c.back_substitute(&dc, lambda));
                 let mut predicted = dc.dot(&(lambda * &dc - &gc_tot));
                 let mut finite = true;
                 for c in self.chunks.iter() {

@@ -145,6 +145,21 @@ pub(crate) fn mul_abt_6x3(a: &Matrix6x3<f64>, b: &Matrix6x3<f64>) -> Matrix6<f64
     Matrix6::from_fn(|i, j| a[(i, 0)] * b[(j, 0)] + a[(i, 1)] * b[(j, 1)] + a[(i, 2)] * b[(j, 2)])
 }
 
+/// `s −= a·bᵀ` for two 6×3 blocks, each entry computed exactly as [`mul_abt_6x3`] does (so
+/// the result is bit-identical to subtracting its product), written over the column arrays
+/// so the compiler vectorises the six rows of a column.
+#[inline(always)]
+pub(crate) fn sub_abt_6x3(s: &mut Matrix6<f64>, a: &Matrix6x3<f64>, b: &Matrix6x3<f64>) {
+    let a = &a.data.0;
+    let b = &b.data.0;
+    for (j, col) in s.data.0.iter_mut().enumerate() {
+        let (b0, b1, b2) = (b[0][j], b[1][j], b[2][j]);
+        for i in 0..6 {
+            col[i] -= a[0][i] * b0 + a[1][i] * b1 + a[2][i] * b2;
+        }
+    }
+}
+
 /// `s·aᵀa` for a 3×6 Jacobian.
 #[inline(always)]
 pub(crate) fn ata_3x6(a: &Matrix3x6<f64>, s: f64) -> Matrix6<f64> {
@@ -238,6 +253,21 @@ mod tests {
         let m = Matrix3::from_fn(|i, k| (i + 2 * k) as f64 * 0.3 - 0.5);
         assert!((ata_3x6(&j, 2.0) - 2.0 * j.transpose() * j).norm() < 1e-12);
         assert!((atb_3x6_3x3(&j, &m, 2.0) - 2.0 * j.transpose() * m).norm() < 1e-12);
+    }
+
+    /// The fused kernel of the Schur complement gives the same bits as forming the product
+    /// and subtracting it, so the BA's results did not change when it was introduced.
+    #[test]
+    fn fused_subtraction_is_bit_identical_to_the_product() {
+        let a = Matrix6x3::from_fn(|i, j| ((i * 3 + j) as f64 * 0.37 - 2.0).sin() * 1e3);
+        let b = Matrix6x3::from_fn(|i, j| ((i + 5 * j) as f64 * -0.21 + 1.0).cos() / 7.0);
+        let s0 = Matrix6::from_fn(|i, j| (i as f64 - 2.5 * j as f64) / 3.0);
+        let mut fused = s0;
+        sub_abt_6x3(&mut fused, &a, &b);
+        assert_eq!(fused, s0 - mul_abt_6x3(&a, &b));
+        let mut fused_t = s0;
+        sub_abt_6x3(&mut fused_t, &b, &a);
+        assert_eq!(fused_t, s0 - mul_abt_6x3(&a, &b).transpose());
     }
 
     #[test]

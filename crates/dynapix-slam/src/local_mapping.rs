@@ -596,12 +596,25 @@ pub(crate) fn weighted_ba_edges(
     pose_index: &HashMap<KeyFrameId, usize>,
 ) -> (Vec<BaEdge>, Vec<(MapPointId, KeyFrameId)>) {
     let pyr = &map.pyramid;
+    // `pose_index` by arena slot: one lookup per observation without hashing.
+    let mut by_slot: Vec<Option<(KeyFrameId, usize)>> = Vec::new();
+    for (&k, &i) in pose_index {
+        if by_slot.len() <= k.slot() {
+            by_slot.resize(k.slot() + 1, None);
+        }
+        by_slot[k.slot()] = Some((k, i));
+    }
     let mut edges = Vec::new();
     let mut edge_ref: Vec<(MapPointId, KeyFrameId)> = Vec::new();
     for (pi, &m) in points.iter().enumerate() {
         let Some(p) = map.point(m) else { continue };
         for (&o, &idx) in &p.observations {
-            let Some(&ki) = pose_index.get(&o) else {
+            let Some(ki) = by_slot
+                .get(o.slot())
+                .copied()
+                .flatten()
+                .and_then(|(k, i)| (k == o).then_some(i))
+            else {
                 continue;
             };
             let Some(k) = map.keyframe(o) else { continue };

@@ -34,6 +34,11 @@ impl KeyFrameId {
             generation: 0,
         }
     }
+
+    /// The arena slot of the keyframe (shared with ids of culled keyframes of that slot).
+    pub(crate) fn slot(self) -> usize {
+        self.index as usize
+    }
 }
 
 impl MapPointId {
@@ -266,6 +271,9 @@ pub struct MapPoint {
     /// 1 − the point's DynaPix motion probability, initialised from the creating keypoint
     /// and updated from matched keypoints by [`crate::dynapix::update_matched_points`].
     pub weight: f32,
+    /// The observations `descriptor` was last chosen from, in order, and the choice: when
+    /// both still hold, [`Map::compute_distinctive_descriptor`] would choose the same again.
+    pub(crate) descriptor_basis: (Vec<(KeyFrameId, usize)>, Descriptor),
 }
 
 impl MapPoint {
@@ -505,6 +513,7 @@ impl Map {
             visible: 1,
             found: 1,
             weight,
+            descriptor_basis: (Vec::new(), descriptor),
         };
         self.next_mp_seq += 1;
         let (index, generation) = self.points.insert(mp);
@@ -635,23 +644,36 @@ impl Map {
     /// median Hamming distance to the others.
     pub fn compute_distinctive_descriptor(&mut self, mp: MapPointId) {
         let Some(p) = self.point(mp) else { return };
-        let descs: Vec<Descriptor> = p
-            .observations
-            .iter()
-            .filter_map(|(&kf, &idx)| self.keyframe(kf)?.descriptors.get(idx).copied())
-            .collect();
+        let mut basis = Vec::with_capacity(p.observations.len());
+        let mut descs: Vec<Descriptor> = Vec::with_capacity(p.observations.len());
+        for (&kf, &idx) in &p.observations {
+            if let Some(d) = self.keyframe(kf).and_then(|k| k.descriptors.get(idx)) {
+                basis.push((kf, idx));
+                descs.push(*d);
+            }
+        }
         if descs.is_empty() {
             return;
         }
+        // Keyframe descriptors never change: the same observations give the same choice, so
+        // the quadratic search below runs only when they changed since the last one.
+        if p.descriptor_basis.0 == basis && p.descriptor_basis.1 == p.descriptor {
+            return;
+        }
         let n = descs.len();
-        let mut best = (u32::MAX, 0usize);
-        let mut row = vec![0u32; n];
+        // The distance matrix is symmetric: each pair is computed once, and the median of a
+        // row is selected, not sorted for (same value, so the same descriptor is chosen).
+        let mut dist = vec![0u32; n * n];
         for i in 0..n {
-            for (j, r) in row.iter_mut().enumerate() {
-                *r = hamming(&descs[i], &descs[j]);
+            for j in i + 1..n {
+                let d = hamming(&descs[i], &descs[j]);
+                dist[i * n + j] = d;
+                dist[j * n + i] = d;
             }
-            row.sort_unstable();
-            let median = row[(n - 1) / 2];
+        }
+        let mut best = (u32::MAX, 0usize);
+        for (i, row) in dist.chunks_exact_mut(n).enumerate() {
+            let (_, &mut median, _) = row.select_nth_unstable((n - 1) / 2);
             if median < best.0 {
                 best = (median, i);
             }
@@ -659,6 +681,7 @@ impl Map {
         let d = descs[best.1];
         if let Some(p) = self.point_mut(mp) {
             p.descriptor = d;
+            p.descriptor_basis = (basis, d);
         }
     }
 
@@ -936,6 +959,75 @@ mod tests {
             m.point(p).is_none(),
             "old id must stay stale after slot reuse"
         );
+    }
+
+    /// The representative descriptor, by brute force over every observation.
+    fn distinctive_by_brute_force(m: &Map, p: MapPointId) -> Descriptor {
+        let descs: Vec<Descriptor> = m
+            .point(p)
+            .unwrap()
+            .observations
+            .iter()
+            .map(|(&k, &i)| m.keyframe(k).unwrap().descriptors[i])
+            .collect();
+        let median = |d: &Descriptor| {
+            let mut row: Vec<u32> = descs.iter().map(|o| hamming(d, o)).collect();
+            row.sort_unstable();
+            row[(row.len() - 1) / 2]
+        };
+        let mut best = descs[0];
+        for d in &descs {
+            if median(d) < median(&best) {
+                best = *d;
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn the_distinctive_descriptor_follows_the_observations_and_survives_overwrites() {
+        let mut m = map();
+        let mut with = |bits: [u8; 4]| {
+            let mut k = kf_with(1);
+            k.descriptors[0] = [0; 32];
+            k.descriptors[0][..4].copy_from_slice(&bits);
+            m.insert_keyframe(k)
+        };
+        let ks = [
+            with([0xff, 0, 0, 0]),
+            with([0x0f, 0, 0, 0]),
+            with([0x0f, 0x01, 0, 0]),
+            with([0, 0xff, 0xff, 0]),
+        ];
+        let p = m
+            .create_point(Vector3::new(0.0, 0.0, 1.0), ks[0], 0)
+            .unwrap();
+        for &k in &ks[1..3] {
+            m.add_observation(p, k, 0);
+        }
+        m.compute_distinctive_descriptor(p);
+        assert_eq!(
+            m.point(p).unwrap().descriptor,
+            distinctive_by_brute_force(&m, p)
+        );
+        // Unchanged observations, a descriptor overwritten by hand: computed again.
+        m.point_mut(p).unwrap().descriptor = [7; 32];
+        m.compute_distinctive_descriptor(p);
+        assert_eq!(
+            m.point(p).unwrap().descriptor,
+            distinctive_by_brute_force(&m, p)
+        );
+        // A new observation changes the choice.
+        let before = m.point(p).unwrap().descriptor;
+        m.add_observation(p, ks[3], 0);
+        m.compute_distinctive_descriptor(p);
+        assert_eq!(
+            m.point(p).unwrap().descriptor,
+            distinctive_by_brute_force(&m, p)
+        );
+        m.erase_observation(p, ks[3]);
+        m.compute_distinctive_descriptor(p);
+        assert_eq!(m.point(p).unwrap().descriptor, before);
     }
 
     #[test]

@@ -38,6 +38,59 @@ pub trait FeatureExtractor {
     fn pyramid(&self) -> ScalePyramid;
 }
 
+/// Keypoints and descriptors of one frame, from [`FeatureStage::extract`].
+#[derive(Clone, Debug)]
+pub struct Features {
+    /// Keypoints, level-0 image coordinates.
+    pub keys: Vec<KeyPoint>,
+    /// Their descriptors.
+    pub descriptors: Vec<Descriptor>,
+    /// Wall-clock seconds the extraction took (measurement only).
+    pub seconds: f64,
+}
+
+/// The feature extraction of a [`System`] on its own. It depends only on the frame (its grey
+/// image and, with [`SystemParams::static_features_min_weight`], its weights), never on the
+/// map, so a copy ([`System::feature_stage`]) can run ahead of tracking on another thread and
+/// gives exactly the features [`System::process`] would extract (see
+/// [`System::process_features`]).
+#[derive(Clone, Debug)]
+pub struct FeatureStage<E> {
+    extractor: E,
+    static_features_min_weight: Option<f32>,
+}
+
+impl<E: FeatureExtractor> FeatureStage<E> {
+    /// Extracts the features of a frame with grey image `gray` and static weights `weights`.
+    pub fn extract(&mut self, gray: &GrayImage, weights: Option<&StaticWeights>) -> Features {
+        let t0 = Instant::now();
+        let _stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
+        let keep = match (self.static_features_min_weight, weights) {
+            (Some(th), Some(w)) if w.dimensions() == gray.dimensions() => {
+                crate::orb::KeepMask::new(
+                    w.as_image().width(),
+                    w.as_image().height(),
+                    w.as_image()
+                        .as_raw()
+                        .iter()
+                        .map(|&v| v.is_nan() || v >= th)
+                        .collect(),
+                )
+            }
+            _ => None,
+        };
+        let (keys, descriptors) = match &keep {
+            Some(k) => self.extractor.extract_where(gray, Some(k)),
+            None => self.extractor.extract(gray),
+        };
+        Features {
+            keys,
+            descriptors,
+            seconds: t0.elapsed().as_secs_f64(),
+        }
+    }
+}
+
 /// Parameters of all stages.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
@@ -210,7 +263,7 @@ fn frame_matches(f: &Frame, map: &Map) -> Vec<(MapPointId, Observation)> {
 
 /// The SLAM system.
 pub struct System<E> {
-    extractor: E,
+    features: FeatureStage<E>,
     cam: RgbdCamera,
     bounds: ImageBounds,
     map: Map,
@@ -222,8 +275,6 @@ pub struct System<E> {
     vocab: Option<Vocabulary>,
     /// Localisation mode: track a fixed map, never map (see [`System::from_map`]).
     localization: bool,
-    /// See [`SystemParams::static_features_min_weight`].
-    static_features_min_weight: Option<f32>,
     /// See [`SystemParams::final_global_ba`].
     final_global_ba: bool,
     /// See [`SystemParams::final_pose_refinement`].
@@ -242,13 +293,15 @@ impl<E: FeatureExtractor> System<E> {
             tracker: Tracker::new(cam.clone(), params.tracking.clone()),
             mapper: LocalMapper::new(cam.clone(), params.mapping.clone()),
             closer: LoopCloser::new(cam.clone(), params.loop_closing.clone()),
-            extractor,
+            features: FeatureStage {
+                extractor,
+                static_features_min_weight: params.static_features_min_weight,
+            },
             cam,
             records: Vec::new(),
             next_index: 0,
             vocab: None,
             localization: false,
-            static_features_min_weight: params.static_features_min_weight,
             final_global_ba: params.final_global_ba,
             final_pose_refinement: params.final_pose_refinement,
             refine_params: crate::dynapix::pose_params(&params.tracking.pose, &params.map.dynapix),
@@ -384,34 +437,49 @@ impl<E: FeatureExtractor> System<E> {
         Ok(())
     }
 
+    /// A copy of this system's feature extraction, to run ahead of tracking (e.g. on another
+    /// thread) and hand its output to [`System::process_features`].
+    pub fn feature_stage(&self) -> FeatureStage<E>
+    where
+        E: Clone,
+    {
+        self.features.clone()
+    }
+
     /// Processes one frame: extraction, tracking, then local mapping and loop closing on a new
     /// keyframe. A depth, weight or mask map of another size than the grey image (or a grey
     /// image of another size than the camera) is refused before anything changes.
     pub fn process(&mut self, input: FrameInput<'_>) -> Result<FrameResult, ProcessError> {
         self.check_sizes(&input)?;
+        let features = self.features.extract(input.gray, input.weights);
+        self.track_and_map(input, features)
+    }
+
+    /// [`System::process`] with the frame's features already extracted by a copy of this
+    /// system's [`System::feature_stage`] from the same `input`: the same result, without the
+    /// extraction. Inputs of the wrong size are refused as by [`System::process`].
+    pub fn process_features(
+        &mut self,
+        input: FrameInput<'_>,
+        features: Features,
+    ) -> Result<FrameResult, ProcessError> {
+        self.check_sizes(&input)?;
+        self.track_and_map(input, features)
+    }
+
+    /// Tracking, local mapping and loop closing of a checked frame with its features.
+    fn track_and_map(
+        &mut self,
+        input: FrameInput<'_>,
+        features: Features,
+    ) -> Result<FrameResult, ProcessError> {
         let index = self.next_index;
         self.next_index += 1;
-        let t0 = Instant::now();
-        let stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
-        let keep = match (self.static_features_min_weight, input.weights) {
-            (Some(th), Some(w)) if w.dimensions() == input.gray.dimensions() => {
-                crate::orb::KeepMask::new(
-                    w.as_image().width(),
-                    w.as_image().height(),
-                    w.as_image()
-                        .as_raw()
-                        .iter()
-                        .map(|&v| v.is_nan() || v >= th)
-                        .collect(),
-                )
-            }
-            _ => None,
-        };
-        let (keys, descs) = match &keep {
-            Some(k) => self.extractor.extract_where(input.gray, Some(k)),
-            None => self.extractor.extract(input.gray),
-        };
-        drop(stage);
+        let Features {
+            keys,
+            descriptors: descs,
+            seconds: extract_seconds,
+        } = features;
         let t1 = Instant::now();
         let stage = tracing::info_span!(target: "dynapix::stage", "tracking").entered();
         let mut frame = Frame::new(
@@ -496,7 +564,7 @@ impl<E: FeatureExtractor> System<E> {
             reset,
             relocalised: out.relocalised,
             times: StepTimes {
-                extract: (t1 - t0).as_secs_f64(),
+                extract: extract_seconds,
                 track: (t2 - t1).as_secs_f64(),
                 mapping: (t3 - t2).as_secs_f64(),
                 loop_closing: (t4 - t3).as_secs_f64(),

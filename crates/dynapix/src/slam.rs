@@ -2,9 +2,10 @@
 //! frame, optionally with static weights (DynaPix) and semantic masks (DynaPix+), and what a
 //! pass leaves: the trajectory, per-frame status and timing, keyframes, closed loops.
 //!
-//! Images (and weight maps) are decoded on a helper thread a few frames ahead of tracking;
-//! the system itself runs its stages in a fixed order on the calling thread, so a pass is
-//! deterministic.
+//! Images (and weight maps) are decoded, converted to grey and their ORB features extracted
+//! on a helper thread a few frames ahead of tracking (extraction depends on nothing but the
+//! frame); the system itself runs tracking, mapping and loop closing in a fixed order on the
+//! calling thread, so a pass is deterministic.
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::sync_channel;
@@ -14,7 +15,7 @@ use dynapix_io::images::{read_mask, read_static_weights};
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
 use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::system::{FrameInput, FrameResult, System, SystemParams};
+use dynapix_slam::system::{FeatureStage, Features, FrameInput, FrameResult, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
 use image::{GrayImage, RgbImage};
@@ -129,6 +130,8 @@ pub struct PassOutput {
 /// A SLAM system being fed frames, with the bookkeeping of a pass.
 pub struct SlamSession {
     system: System<OrbExtractor>,
+    /// The system's feature extraction, for [`SlamSession::track`].
+    features: FeatureStage<OrbExtractor>,
     status: Vec<StampedStatus>,
     timings: Vec<FrameTiming>,
     started: Instant,
@@ -149,6 +152,7 @@ impl SlamSession {
             system = system.with_vocabulary(v);
         }
         Ok(Self {
+            features: system.feature_stage(),
             system,
             status: Vec::new(),
             timings: Vec::new(),
@@ -188,13 +192,38 @@ impl SlamSession {
         mask: Option<&GrayImage>,
     ) -> Result<FrameResult> {
         let gray = rgb_to_gray_orbslam(rgb);
-        let res = self.system.process(FrameInput {
-            timestamp: t,
-            gray: &gray,
-            depth,
-            weights,
-            masks: mask,
-        })?;
+        let features = self.features.extract(&gray, weights);
+        self.track_features(t, &gray, features, depth, weights, mask)
+    }
+
+    /// A copy of the system's feature extraction, to extract frames ahead on another thread
+    /// ([`SlamSession::track_features`]).
+    pub fn feature_stage(&self) -> FeatureStage<OrbExtractor> {
+        self.features.clone()
+    }
+
+    /// Tracks one frame whose grey image (from [`rgb_to_gray_orbslam`]) and features (from
+    /// [`SlamSession::feature_stage`], with the same `weights`) were computed ahead: the same
+    /// result as [`SlamSession::track`].
+    pub fn track_features(
+        &mut self,
+        t: f64,
+        gray: &GrayImage,
+        features: Features,
+        depth: &DepthImage,
+        weights: Option<&StaticWeights>,
+        mask: Option<&GrayImage>,
+    ) -> Result<FrameResult> {
+        let res = self.system.process_features(
+            FrameInput {
+                timestamp: t,
+                gray,
+                depth,
+                weights,
+                masks: mask,
+            },
+            features,
+        )?;
         let st = frame_status(res.state);
         self.status.push(StampedStatus { t, status: st });
         self.timings.push(FrameTiming {
@@ -294,28 +323,45 @@ pub enum PassWeights<'a> {
     },
 }
 
+/// A frame's grey image, depth and features, ready for tracking.
+struct Prepared {
+    gray: GrayImage,
+    depth: DepthImage,
+    features: Features,
+}
+
 /// One decoded frame of a pass.
 struct Decoded {
     t: f64,
-    images: Result<(RgbImage, DepthImage)>,
+    images: Result<Prepared>,
     weights: Result<Option<StaticWeights>>,
     mask: Result<Option<GrayImage>>,
     missing: bool,
 }
 
-fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path>) -> Decoded {
+/// Decodes frame `i` and, when its images and weights are usable, extracts its features with
+/// `stage` (which depends on nothing but the frame, so this can run ahead of tracking).
+fn decode(
+    input: &Input,
+    i: usize,
+    weights: PassWeights<'_>,
+    masks: Option<&Path>,
+    stage: &mut FeatureStage<OrbExtractor>,
+) -> Decoded {
     let t = input.sequence.frames[i].t;
-    let images = input.load_rgbd(i);
-    if images.is_err() {
-        // The frame is skipped or stops the pass: its map and mask do not matter.
-        return Decoded {
-            t,
-            images,
-            weights: Ok(None),
-            mask: Ok(None),
-            missing: false,
-        };
-    }
+    let (rgb, depth) = match input.load_rgbd(i) {
+        Ok(images) => images,
+        Err(e) => {
+            // The frame is skipped or stops the pass: its map and mask do not matter.
+            return Decoded {
+                t,
+                images: Err(e),
+                weights: Ok(None),
+                mask: Ok(None),
+                missing: false,
+            };
+        }
+    };
     let name = input.map_name(i);
     let mut missing = false;
     let weights = match (weights, &name) {
@@ -353,9 +399,24 @@ fn decode(input: &Input, i: usize, weights: PassWeights<'_>, masks: Option<&Path
             None => Err(Error::Input(format!("frame {i} has no file name"))),
         },
     };
+    let gray = rgb_to_gray_orbslam(&rgb);
+    drop(rgb);
+    let features = match &weights {
+        Ok(w) => stage.extract(&gray, w.as_ref()),
+        // The pass stops at this frame: no features needed.
+        Err(_) => Features {
+            keys: Vec::new(),
+            descriptors: Vec::new(),
+            seconds: 0.0,
+        },
+    };
     Decoded {
         t,
-        images,
+        images: Ok(Prepared {
+            gray,
+            depth,
+            features,
+        }),
         weights,
         mask,
         missing,
@@ -381,15 +442,19 @@ pub fn run_pass(
     let task = Task::begin(progress, label, n);
     let fed = std::thread::scope(|scope| -> Result<()> {
         let (tx, rx) = sync_channel::<Decoded>(4);
+        let mut stage = session.feature_stage();
         scope.spawn(move || {
             for i in 0..n {
-                if tx.send(decode(input, i, weights, masks)).is_err() {
+                if tx
+                    .send(decode(input, i, weights, masks, &mut stage))
+                    .is_err()
+                {
                     break;
                 }
             }
         });
         for d in rx {
-            let (rgb, depth) = match d.images {
+            let prepared = match d.images {
                 Ok(images) => images,
                 Err(Error::Frame(bad)) if input.skip_bad_frames => {
                     tracing::warn!("skipped {bad}");
@@ -403,7 +468,14 @@ pub fn run_pass(
             if d.missing {
                 session.note_missing_weights();
             }
-            session.track(d.t, &rgb, &depth, w.as_ref(), m.as_ref())?;
+            session.track_features(
+                d.t,
+                &prepared.gray,
+                prepared.features,
+                &prepared.depth,
+                w.as_ref(),
+                m.as_ref(),
+            )?;
             task.step(&session.summary());
         }
         Ok(())

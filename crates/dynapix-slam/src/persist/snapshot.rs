@@ -290,6 +290,7 @@ impl MapSnapshot {
                     visible: p.visible,
                     found: p.found,
                     weight: p.weight,
+                    descriptor_basis: (Vec::new(), p.descriptor),
                 }
             })
             .collect();
