@@ -56,6 +56,22 @@ impl PinholeCamera {
         Self::new(640, 480, 535.4, 539.2, 320.1, 247.6)
     }
 
+    /// The same camera for images of `width × height`: `fx`, `cx` scaled by
+    /// `width / self.width`, `fy`, `cy` by `height / self.height`, distortion kept.
+    pub fn resized(&self, width: u32, height: u32) -> Self {
+        let sx = width as f64 / self.width as f64;
+        let sy = height as f64 / self.height as f64;
+        Self {
+            width,
+            height,
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            dist: self.dist,
+        }
+    }
+
     /// True when any distortion coefficient is non-zero.
     pub fn is_distorted(&self) -> bool {
         self.dist.iter().any(|&d| d != 0.0)
@@ -295,6 +311,26 @@ impl PinholeCamera {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn resizing_scales_projections_and_keeps_rays() {
+        let c = PinholeCamera::tum_fr3();
+        assert_eq!(c.resized(c.width, c.height), c);
+        let half = c.resized(320, 240);
+        assert_eq!((half.width, half.height), (320, 240));
+        for p in [
+            Point3::new(0.3, -0.2, 2.0),
+            Point3::new(-1.0, 0.5, 4.5),
+            Point3::new(0.0, 0.0, 1.0),
+        ] {
+            let a = c.project(&p).unwrap();
+            let b = half.project(&p).unwrap();
+            assert!((a.x * 0.5 - b.x).abs() < 1e-9 && (a.y * 0.5 - b.y).abs() < 1e-9);
+            // The ray through a pixel is the ray through the scaled pixel.
+            let q = half.unproject(&b, p.z);
+            assert!((q - p).norm() < 1e-9);
+        }
+    }
 
     #[test]
     fn pixel_rays_are_the_undistorted_pixels() {

@@ -684,19 +684,10 @@ mod tests {
     /// pose refinement, and the system.
     fn refined_run() -> System<OrbExtractor> {
         use image::Luma;
-        let full = PinholeCamera::tum_fr3();
-        let s = 0.5;
-        let pin = PinholeCamera::new(320, 240, full.fx * s, full.fy * s, full.cx * s, full.cy * s);
-        let params = dynapix_synth::SynthParams {
-            preset: "static".parse().expect("preset"),
-            frames: 40,
-            seed: 0,
-            scene: dynapix_synth::SceneParams::for_width(pin.width),
-            camera: pin.clone(),
-            ..dynapix_synth::SynthParams::default()
-        };
+        let params =
+            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::Static, 40, 0, 320, 240);
         let seq = dynapix_synth::Sequence::new(params).expect("sequence");
-        let st = dynapix_synth::output::camera_settings(&pin, seq.params.fps);
+        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
         let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
         let params = SystemParams {
             final_pose_refinement: true,

@@ -6,7 +6,6 @@
 
 use std::sync::mpsc::sync_channel;
 
-use dynapix_geometry::PinholeCamera;
 use dynapix_slam::frame::{DepthImage, RgbdCamera};
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
@@ -17,19 +16,10 @@ const FRAMES: usize = 40;
 
 /// Frames of a synthetic `walking_xyz` sequence at 320×240 and its camera.
 fn sequence() -> (Vec<(f64, GrayImage, DepthImage)>, RgbdCamera) {
-    let full = PinholeCamera::tum_fr3();
-    let s = 320.0 / full.width as f64;
-    let cam = PinholeCamera::new(320, 240, full.fx * s, full.fy * s, full.cx * s, full.cy * s);
-    let params = dynapix_synth::SynthParams {
-        preset: dynapix_synth::Preset::WalkingXyz,
-        frames: FRAMES,
-        seed: 0,
-        scene: dynapix_synth::SceneParams::for_width(cam.width),
-        camera: cam.clone(),
-        ..dynapix_synth::SynthParams::default()
-    };
+    let params =
+        dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, FRAMES, 0, 320, 240);
     let seq = dynapix_synth::Sequence::new(params).expect("sequence");
-    let st = dynapix_synth::output::camera_settings(&cam, seq.params.fps);
+    let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
     let rgbd = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
     let frames = (0..FRAMES)
         .map(|i| {

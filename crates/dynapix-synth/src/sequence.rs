@@ -151,6 +151,23 @@ pub struct SynthParams {
     pub moving_threshold: f32,
 }
 
+impl SynthParams {
+    /// `frames` frames of `preset` with `seed`, seen by the default camera resized to
+    /// `width × height` (see [`PinholeCamera::resized`]) with the scene detail of that width;
+    /// everything else default.
+    pub fn at_size(preset: Preset, frames: usize, seed: u64, width: u32, height: u32) -> Self {
+        let camera = PinholeCamera::tum_fr3().resized(width, height);
+        Self {
+            preset,
+            frames,
+            seed,
+            scene: SceneParams::for_width(width),
+            camera,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for SynthParams {
     fn default() -> Self {
         Self {

@@ -87,30 +87,13 @@ pub struct Args {
 pub(crate) fn params(args: &Args) -> anyhow::Result<SynthParams> {
     let preset: Preset = args.preset.parse()?;
     let mut cam = dynapix_geometry::PinholeCamera::tum_fr3();
-    if let Some(w) = args.width {
+    if args.width.is_some() || args.height.is_some() {
+        let w = args.width.unwrap_or(cam.width);
         let s = w as f64 / cam.width as f64;
         let h = args
             .height
             .unwrap_or((cam.height as f64 * s).round() as u32);
-        let sy = h as f64 / cam.height as f64;
-        cam = dynapix_geometry::PinholeCamera::new(
-            w,
-            h,
-            cam.fx * s,
-            cam.fy * sy,
-            cam.cx * s,
-            cam.cy * sy,
-        );
-    } else if let Some(h) = args.height {
-        let sy = h as f64 / cam.height as f64;
-        cam = dynapix_geometry::PinholeCamera::new(
-            cam.width,
-            h,
-            cam.fx,
-            cam.fy * sy,
-            cam.cx,
-            cam.cy * sy,
-        );
+        cam = cam.resized(w, h);
     }
     if let Some(v) = args.fx {
         cam.fx = v;

@@ -224,19 +224,9 @@ fn run_sequence(
 /// A synthetic sequence at 320×240 (the CLI's scaling of the fr3 intrinsics).
 fn synth_sequence(preset: &str, frames: usize) -> (dynapix_synth::Sequence, RgbdCamera) {
     let preset: dynapix_synth::Preset = preset.parse().expect("preset");
-    let full = PinholeCamera::tum_fr3();
-    let s = 320.0 / full.width as f64;
-    let cam = PinholeCamera::new(320, 240, full.fx * s, full.fy * s, full.cx * s, full.cy * s);
-    let params = dynapix_synth::SynthParams {
-        preset,
-        frames,
-        seed: 0,
-        scene: dynapix_synth::SceneParams::for_width(cam.width),
-        camera: cam.clone(),
-        ..dynapix_synth::SynthParams::default()
-    };
+    let params = dynapix_synth::SynthParams::at_size(preset, frames, 0, 320, 240);
     let seq = dynapix_synth::Sequence::new(params).expect("sequence");
-    let st = dynapix_synth::output::camera_settings(&cam, seq.params.fps);
+    let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
     let rgbd = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
     (seq, rgbd)
 }
