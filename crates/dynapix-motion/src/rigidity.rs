@@ -33,7 +33,7 @@
 
 use std::sync::Arc;
 
-use dynapix_flow::{DisFlow, FlowField, FlowProvider, Preset};
+use dynapix_flow::{DisFlow, DisParams, FlowField, FlowProvider, Preset};
 use dynapix_geometry::align::align_se3;
 use dynapix_geometry::{PinholeCamera, PixelRays, Se3};
 use image::GrayImage;
@@ -52,6 +52,14 @@ use crate::{FloatImage, MotionError, check_size};
 pub struct RigidityParams {
     /// DIS preset of the flow from a frame to its neighbour (used by [`rigidity_probability`]).
     pub flow_preset: Preset,
+    /// Width in pixels (160) below which the flow's finest computed pyramid level does not
+    /// go: the flow is computed on the coarsest level at least this wide, unless the preset
+    /// stops coarser, and upsampled to the image. With the medium preset a 320×240 image
+    /// is computed at 160×120 either way, and a 640×480 image is now computed on the same
+    /// 160×120 level instead of 320×240, so the cue costs and means the same at every
+    /// resolution (its pixel constants already scale with the focal length). 0 keeps the
+    /// preset's own finest level at every resolution (the behaviour before 2026-12-02).
+    pub flow_working_width: u32,
     /// Grid step (pixels) of the correspondences fed to RANSAC.
     pub stride: u32,
     /// Depth (metres) a pixel must exceed, in both frames, to take part.
@@ -105,6 +113,7 @@ impl Default for RigidityParams {
     fn default() -> Self {
         Self {
             flow_preset: Preset::Medium,
+            flow_working_width: 160,
             stride: 4,
             min_depth: 0.1,
             min_correspondences: 20,
@@ -139,6 +148,29 @@ impl RigidityParams {
     /// `sigma_px` at the focal length of `cam`.
     pub fn sigma_px_for(&self, cam: &PinholeCamera) -> f64 {
         self.sigma_px * cam.fx / self.reference_focal_px
+    }
+
+    /// The finest pyramid level of the flow for an image `width` pixels wide: the preset's,
+    /// or the coarsest level at least [`RigidityParams::flow_working_width`] wide if that is
+    /// coarser.
+    pub fn flow_finest_scale(&self, width: u32) -> usize {
+        let preset = DisParams::preset(self.flow_preset).finest_scale;
+        if self.flow_working_width == 0 {
+            return preset;
+        }
+        let mut level = 0;
+        while (width >> (level + 1)) >= self.flow_working_width {
+            level += 1;
+        }
+        preset.max(level)
+    }
+
+    /// The DIS flow of the cue for an image `width` pixels wide: the preset with its finest
+    /// level from [`RigidityParams::flow_finest_scale`].
+    pub fn flow_for_width(&self, width: u32) -> DisFlow {
+        let mut p = DisParams::preset(self.flow_preset);
+        p.finest_scale = self.flow_finest_scale(width);
+        DisFlow::new(p)
     }
 
     /// `stride` at the focal length of `cam` (at least 1).
@@ -744,14 +776,15 @@ pub fn camera_rays(cam: &PinholeCamera) -> Arc<PixelRays> {
 }
 
 /// The rigidity cue of `cur` from `neighbours` with DIS flow of preset
-/// [`RigidityParams::flow_preset`] (see [`rigidity_probability_with`]).
+/// [`RigidityParams::flow_preset`] at [`RigidityParams::flow_working_width`] (see
+/// [`rigidity_probability_with`]).
 pub fn rigidity_probability(
     cur: &RigidFrame<'_>,
     neighbours: &[RigidFrame<'_>],
     cam: &PinholeCamera,
     params: &RigidityParams,
 ) -> Result<RigidityMaps, MotionError> {
-    let dis = DisFlow::with_preset(params.flow_preset);
+    let dis = params.flow_for_width(cam.width);
     rigidity_probability_with(cur, neighbours, cam, &dis, params)
 }
 
@@ -1086,6 +1119,31 @@ mod tests {
     }
 
     #[test]
+    fn the_flow_runs_on_the_same_level_width_at_every_resolution() {
+        let d = RigidityParams::default();
+        // Medium stops at level 1 by itself; the working width of 160 px takes a 640-pixel
+        // image to level 2 and a 1280-pixel one to level 3: 160 px across in every case.
+        for (width, level) in [(160, 1), (320, 1), (480, 1), (640, 2), (1280, 3), (100, 1)] {
+            assert_eq!(d.flow_finest_scale(width), level, "width {width}");
+            assert_eq!(d.flow_for_width(width).params.finest_scale, level);
+        }
+        let own = RigidityParams {
+            flow_working_width: 0,
+            ..d.clone()
+        };
+        assert_eq!(own.flow_finest_scale(640), 1);
+        // A preset that stops coarser keeps its own level.
+        let fast = RigidityParams {
+            flow_preset: Preset::Fast,
+            ..d
+        };
+        assert_eq!(fast.flow_finest_scale(320), 2);
+        assert_eq!(fast.flow_finest_scale(1280), 3);
+        let p = fast.flow_for_width(640).params;
+        assert_eq!((p.finest_scale, p.patch_stride), (2, 4));
+    }
+
+    #[test]
     fn params_default_validate_and_deserialise() {
         let d = RigidityParams::default();
         d.validate().unwrap();
@@ -1093,7 +1151,7 @@ mod tests {
             (d.stride, d.ransac_iterations, d.chi2, d.r0, d.r1),
             (4, 500, 27.0, 3.0, 8.0)
         );
-        assert_eq!(d.flow_preset, Preset::Medium);
+        assert_eq!((d.flow_preset, d.flow_working_width), (Preset::Medium, 160));
         let parsed: RigidityParams = serde_json::from_str("{}").unwrap();
         assert_eq!(parsed, d);
         let parsed: RigidityParams =

@@ -166,7 +166,7 @@ impl<'a> RigidityJob<'a> {
             loaded.insert(j, self.load(j)?);
         }
         let cam = self.input.camera.pinhole();
-        let flow = DisFlow::with_preset(self.params.flow_preset);
+        let flow = self.params.flow_for_width(cam.width);
         Ok(self.frame_with(i, &loaded, &cam, &flow)?.0)
     }
 
@@ -184,7 +184,7 @@ impl<'a> RigidityJob<'a> {
             .map_err(|e| Error::config(format!("motion.rigidity: {e}")))?;
         let n = self.input.len();
         let cam = self.input.camera.pinhole();
-        let flow = DisFlow::with_preset(self.params.flow_preset);
+        let flow = self.params.flow_for_width(cam.width);
         let chunk = 4 * rayon::current_num_threads().max(1);
         let all: Vec<usize> = (0..n).filter(|&i| !self.input.is_bad(i)).collect();
         let task = Task::begin(progress, label, all.len());

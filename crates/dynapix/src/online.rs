@@ -167,7 +167,10 @@ impl OnlineDynaPix {
             cam: camera.pinhole(),
             system,
             flow: DisFlow::with_preset(config.motion.flow.preset()),
-            rigidity_flow: DisFlow::with_preset(config.motion.rigidity.flow_preset),
+            rigidity_flow: config
+                .motion
+                .rigidity
+                .flow_for_width(camera.pinhole().width),
             cues,
             params,
             recon: config.motion.reconstruct.clone(),
