@@ -130,6 +130,7 @@ impl PinholeCamera {
     }
 
     /// Distortion in normalised coordinates.
+    #[inline]
     pub fn distort_normalized(&self, x: &Vector2<f64>) -> Vector2<f64> {
         let [k1, k2, p1, p2, k3] = self.dist;
         let r2 = x.x * x.x + x.y * x.y;
@@ -160,6 +161,7 @@ impl PinholeCamera {
         Vector2::new((uv.x - self.cx) / self.fx, (uv.y - self.cy) / self.fy)
     }
 
+    #[inline]
     fn to_pixel(&self, x: &Vector2<f64>) -> Point2<f64> {
         Point2::new(self.fx * x.x + self.cx, self.fy * x.y + self.cy)
     }
@@ -275,6 +277,7 @@ impl PixelRays {
     /// Projects a camera-frame point through the distortion to a raw pixel, like
     /// [`PinholeCamera::project_distorted`], but `None` for points whose normalised radius
     /// exceeds [`PixelRays::max_r2`], which the polynomial model could fold back into view.
+    #[inline]
     pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
         if p.z <= 0.0 {
             return None;

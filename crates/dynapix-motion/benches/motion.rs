@@ -11,6 +11,9 @@ use dynapix_geometry::PinholeCamera;
 use dynapix_io::Trajectory;
 use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
 use dynapix_motion::moving::to_gray;
+use dynapix_motion::static_depth::{
+    DepthView, StaticDepthParams, WorkingDepth, geometric_term, static_depth,
+};
 use dynapix_motion::{
     FrameImages, Mode, MotionParams, Neighbour, SplatParams, Variant, motion_probability, movable,
     splat,
@@ -121,6 +124,30 @@ fn bench(c: &mut Criterion) {
         .collect();
     g.bench_function("reconstruct_background_10_sources", |b| {
         b.iter(|| reconstruct_background(rgb, depth, &sources, &cam, &rp, None).unwrap())
+    });
+    // The geometric cue as the default DynaPix runs it: 24 views at a 320-pixel working
+    // width, the camera's lens distortion modelled (TUM fr1's coefficients).
+    let mut dcam = cam.clone();
+    dcam.dist = [0.262383, -0.953104, -0.005358, 0.002628, 1.163314];
+    let sdp = StaticDepthParams::default();
+    let working: Vec<WorkingDepth> = frames
+        .iter()
+        .map(|f| WorkingDepth::new(&f.1, &sdp))
+        .collect();
+    let views: Vec<DepthView<'_>> = (0..frames.len())
+        .filter(|&k| k != c0)
+        .take(sdp.max_views)
+        .map(|k| DepthView {
+            depth: &working[k],
+            t_cs: t_wc.inverse() * frames[k].2,
+        })
+        .collect();
+    g.bench_function("static_depth_24_views", |b| {
+        b.iter(|| static_depth(&dcam, &views, &sdp).unwrap())
+    });
+    let sd = static_depth(&dcam, &views, &sdp).unwrap();
+    g.bench_function("geometric_term", |b| {
+        b.iter(|| geometric_term(&working[c0], &sd, &sdp).unwrap())
     });
     g.finish();
 }

@@ -205,6 +205,9 @@ fn splat_nearest(
     out: &mut [f32],
 ) {
     let f = view.depth.factor as f64;
+    // Dividing by a power of two is multiplying by its reciprocal, bit for bit; other
+    // factors keep the division.
+    let inv_f = view.depth.factor.is_power_of_two().then(|| 1.0 / f);
     let d = view.depth.depth.as_raw();
     let (w, h) = view.depth.depth.dimensions();
     let (wf, hf) = (w as f64, h as f64);
@@ -227,7 +230,10 @@ fn splat_nearest(
         let Some(uv) = uv else { continue };
         // Nearest working pixel, exactly as `f64::round` (half away from zero) followed by
         // the bounds check, without the libm call: inside the image means x + 0.5 in (0, w).
-        let (u, v) = (uv.x / f + 0.5, uv.y / f + 0.5);
+        let (u, v) = match inv_f {
+            Some(s) => (uv.x * s + 0.5, uv.y * s + 0.5),
+            None => (uv.x / f + 0.5, uv.y / f + 0.5),
+        };
         if !(u > 0.0 && v > 0.0 && u < wf && v < hf) {
             continue;
         }
