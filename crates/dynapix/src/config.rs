@@ -366,6 +366,14 @@ pub struct OnlineConfig {
     pub background_keyframes: usize,
     /// Offsets of past neighbours used by the moving term (negative, `[-2, -1]`).
     pub past_offsets: Vec<i64>,
+    /// The rigidity flow's working width online: replaces
+    /// `motion.rigidity.flow_working_width` (offline default 160) in online runs; 0 (the
+    /// default) computes the flow on the preset's own finest level. Online, the static depth
+    /// sees only the past, so the rigidity cue carries more of P. On the Bonn window without
+    /// lookahead the 160-px level gave 0.073 / 0.027 / 0.076 / 0.069 m over four RANSAC
+    /// seeds against 0.029 / 0.023 / 0.026 / 0.064 m with the finer level (BENCHMARKS.md,
+    /// "Rigidity flow at a fixed working width"), so online keeps the finer flow.
+    pub rigidity_flow_working_width: u32,
 }
 
 impl Default for OnlineConfig {
@@ -377,6 +385,7 @@ impl Default for OnlineConfig {
             // Two past neighbours measured better than one on the synth walking presets
             // (walking_halfsphere 0.018 m vs 0.032 m; BENCHMARKS.md, online mode).
             past_offsets: vec![-2, -1],
+            rigidity_flow_working_width: 0,
         }
     }
 }

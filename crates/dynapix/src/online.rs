@@ -39,7 +39,7 @@ use dynapix_motion::moving::to_gray;
 use dynapix_motion::static_depth::{DepthView, WorkingDepth, geometric_term, static_depth};
 use dynapix_motion::{
     FloatImage, FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, RigidFrame,
-    Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
+    RigidityParams, Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
 };
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
@@ -136,6 +136,16 @@ pub struct OnlineDynaPix {
     next_index: usize,
 }
 
+/// The rigidity cue's flow online: `motion.rigidity` with the online working width
+/// (`online.rigidity_flow_working_width`), for images `width` pixels wide.
+fn online_rigidity_flow(config: &Config, width: u32) -> DisFlow {
+    RigidityParams {
+        flow_working_width: config.online.rigidity_flow_working_width,
+        ..config.motion.rigidity.clone()
+    }
+    .flow_for_width(width)
+}
+
 impl OnlineDynaPix {
     /// An online system for `camera` with `config` (method, mode, motion and SLAM parameters,
     /// the online schedule).
@@ -167,10 +177,7 @@ impl OnlineDynaPix {
             cam: camera.pinhole(),
             system,
             flow: DisFlow::with_preset(config.motion.flow.preset()),
-            rigidity_flow: config
-                .motion
-                .rigidity
-                .flow_for_width(camera.pinhole().width),
+            rigidity_flow: online_rigidity_flow(config, camera.pinhole().width),
             cues,
             params,
             recon: config.motion.reconstruct.clone(),
@@ -602,5 +609,24 @@ impl OnlineDynaPix {
         };
         let maps = motion_probability(&view, &nbs, &self.cam, &self.flow, params)?;
         Ok(MotionProbability::new(maps.p))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn online_rigidity_flow_has_its_own_working_width() {
+        let mut config = Config::default();
+        assert_eq!(config.motion.rigidity.flow_working_width, 160);
+        // Online keeps the medium preset's own finest level (320 px wide at 640×480)...
+        assert_eq!(online_rigidity_flow(&config, 640).params.finest_scale, 1);
+        assert_eq!(online_rigidity_flow(&config, 320).params.finest_scale, 1);
+        // ...unless the online setting asks for the offline working width.
+        config.online.rigidity_flow_working_width = 160;
+        assert_eq!(online_rigidity_flow(&config, 640).params.finest_scale, 2);
+        let parsed = Config::from_yaml_str("online: {rigidity_flow_working_width: 160}").unwrap();
+        assert_eq!(parsed.online.rigidity_flow_working_width, 160);
     }
 }
