@@ -1396,10 +1396,7 @@ mod tests {
                 .into_par_iter()
                 .map(|i| {
                     let (f, _) = seq.frame(i, None);
-                    let depth = FloatImage::from_fn(cam.width, cam.height, |x, y| {
-                        image::Luma([f.depth.get_pixel(x, y)[0] as f32
-                            / dynapix_synth::sequence::DEPTH_FACTOR])
-                    });
+                    let depth = f.depth_metres();
                     (crate::moving::to_gray(&f.rgb), depth, f.mask)
                 })
                 .collect();

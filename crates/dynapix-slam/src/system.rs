@@ -683,7 +683,6 @@ mod tests {
     /// 40 frames of the synthetic `static` preset at 320×240 through a system with the final
     /// pose refinement, and the system.
     fn refined_run() -> System<OrbExtractor> {
-        use image::Luma;
         let params =
             dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::Static, 40, 0, 320, 240);
         let seq = dynapix_synth::Sequence::new(params).expect("sequence");
@@ -697,9 +696,7 @@ mod tests {
         for i in 0..40 {
             let (f, _) = seq.frame(i, None);
             let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
-            let depth = DepthImage::from_fn(f.depth.width(), f.depth.height(), |x, y| {
-                Luma([f.depth.get_pixel(x, y)[0] as f32 / dynapix_synth::sequence::DEPTH_FACTOR])
-            });
+            let depth = f.depth_metres();
             sys.process(FrameInput {
                 timestamp: seq.time(i),
                 gray: &gray,

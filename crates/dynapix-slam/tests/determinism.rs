@@ -10,7 +10,7 @@ use dynapix_slam::frame::{DepthImage, RgbdCamera};
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
 use dynapix_slam::vocab::Vocabulary;
-use image::{GrayImage, Luma};
+use image::GrayImage;
 
 const FRAMES: usize = 40;
 
@@ -25,9 +25,7 @@ fn sequence() -> (Vec<(f64, GrayImage, DepthImage)>, RgbdCamera) {
         .map(|i| {
             let (f, _) = seq.frame(i, None);
             let gray = rgb_to_gray_orbslam(&f.rgb);
-            let depth = DepthImage::from_fn(f.depth.width(), f.depth.height(), |x, y| {
-                Luma([f.depth.get_pixel(x, y)[0] as f32 / dynapix_synth::sequence::DEPTH_FACTOR])
-            });
+            let depth = f.depth_metres();
             (seq.time(i), gray, depth)
         })
         .collect();

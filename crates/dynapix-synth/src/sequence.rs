@@ -207,6 +207,21 @@ pub struct Frame {
     pub instance: Gray16Image,
 }
 
+impl Frame {
+    /// The depth with movers in metres (`depth / DEPTH_FACTOR`, 0 = no depth), as the SLAM
+    /// and motion crates take it.
+    pub fn depth_metres(&self) -> ImageBuffer<Luma<f32>, Vec<f32>> {
+        let data = self
+            .depth
+            .as_raw()
+            .iter()
+            .map(|&d| d as f32 / DEPTH_FACTOR)
+            .collect();
+        ImageBuffer::from_raw(self.depth.width(), self.depth.height(), data)
+            .unwrap_or_else(|| ImageBuffer::new(self.depth.width(), self.depth.height()))
+    }
+}
+
 /// A dense flow field, row-major `[u, v]` per pixel ([`UNKNOWN_FLOW`] where undefined).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Flow {
@@ -926,6 +941,20 @@ mod tests {
         let (f, _) = seq.frame(5, None);
         assert!(f.mask.as_raw().iter().all(|&m| m == 0));
         assert_eq!(f.rgb, f.background);
+    }
+
+    #[test]
+    fn depth_in_metres_divides_by_the_depth_factor() {
+        let seq =
+            Sequence::new(small(Preset::WalkingXyz, 1, SensorParams::default())).expect("sequence");
+        let (f, _) = seq.frame(3, None);
+        let m = f.depth_metres();
+        assert_eq!(m.dimensions(), f.depth.dimensions());
+        for (&d, &z) in f.depth.as_raw().iter().zip(m.as_raw()) {
+            assert_eq!(z, d as f32 / DEPTH_FACTOR);
+        }
+        // A room seen from inside: metric depths, holes stay 0.
+        assert!(m.as_raw().iter().any(|&z| z > 0.5 && z < 10.0));
     }
 }
 

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use dynapix_geometry::{PinholeCamera, Se3};
-use image::{GrayImage, Luma};
+use image::GrayImage;
 use rayon::prelude::*;
 
 use super::{DetectionDiagnostics, DetectionOutcome, DetectionParams, LoopDetector};
@@ -240,18 +240,15 @@ fn synth_frames(
     const CHUNK: usize = 16;
     (0..n.div_ceil(CHUNK)).flat_map(move |c| {
         let idx: Vec<usize> = (c * CHUNK..((c + 1) * CHUNK).min(n)).collect();
-        let out: Vec<(f64, GrayImage, DepthImage)> =
-            idx.par_iter()
-                .map(|&i| {
-                    let (f, _) = seq.frame(i, None);
-                    let gray = rgb_to_gray_orbslam(&f.rgb);
-                    let depth = DepthImage::from_fn(f.depth.width(), f.depth.height(), |x, y| {
-                        Luma([f.depth.get_pixel(x, y)[0] as f32
-                            / dynapix_synth::sequence::DEPTH_FACTOR])
-                    });
-                    (seq.time(i), gray, depth)
-                })
-                .collect();
+        let out: Vec<(f64, GrayImage, DepthImage)> = idx
+            .par_iter()
+            .map(|&i| {
+                let (f, _) = seq.frame(i, None);
+                let gray = rgb_to_gray_orbslam(&f.rgb);
+                let depth = f.depth_metres();
+                (seq.time(i), gray, depth)
+            })
+            .collect();
         out
     })
 }
