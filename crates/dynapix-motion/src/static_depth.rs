@@ -330,48 +330,63 @@ fn median_sorted_desc(run: &[f32]) -> f32 {
 }
 
 /// Minimum over a square window of radius `r`, ignoring `NaN` (NaN where all are NaN).
+/// Pixels outside the image are ignored. The values are positive or `NaN`, so the minimum
+/// does not depend on the order in which the window is visited: the window is folded in as
+/// shifted copies of whole rows and columns, which the compiler vectorises.
 fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    if r == 0 {
+    let fmin = |a: f32, b: f32| if b < a || a.is_nan() { b } else { a };
+    if r == 0 || w == 0 || h == 0 {
         return v.to_vec();
     }
-    let fmin = |a: f32, b: f32| if b < a || a.is_nan() { b } else { a };
-    let mut tmp = vec![f32::NAN; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            tmp[y * w + x] = v[y * w + a..=y * w + b]
-                .iter()
-                .fold(f32::NAN, |m, &q| fmin(m, q));
+    let mut tmp = v.to_vec();
+    for (row_in, row_out) in v.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        for d in 1..=r.min(w - 1) {
+            for (o, &i) in row_out[d..].iter_mut().zip(&row_in[..w - d]) {
+                *o = fmin(*o, i);
+            }
+            for (o, &i) in row_out[..w - d].iter_mut().zip(&row_in[d..]) {
+                *o = fmin(*o, i);
+            }
         }
     }
-    let mut out = vec![f32::NAN; w * h];
-    for y in 0..h {
-        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
-        for x in 0..w {
-            out[y * w + x] = (a..=b).fold(f32::NAN, |m, yy| fmin(m, tmp[yy * w + x]));
+    let mut out = tmp.clone();
+    for d in 1..=r.min(h - 1) {
+        let s = d * w;
+        for (o, &i) in out[s..].iter_mut().zip(&tmp[..w * h - s]) {
+            *o = fmin(*o, i);
+        }
+        for (o, &i) in out[..w * h - s].iter_mut().zip(&tmp[s..]) {
+            *o = fmin(*o, i);
         }
     }
     out
 }
 
-/// Binary morphology on a working-resolution mask.
+/// Binary dilation by a `(2r+1)²` square on a working-resolution mask (pixels outside the
+/// image are ignored), separable and over shifted copies of whole rows and columns.
 fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    if r == 0 {
+    if r == 0 || w == 0 || h == 0 {
         return mask.to_vec();
     }
-    // Separable: rows, then columns.
-    let mut tmp = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            tmp[y * w + x] = mask[y * w + a..=y * w + b].iter().any(|&m| m);
+    let mut tmp = mask.to_vec();
+    for (row_in, row_out) in mask.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        for d in 1..=r.min(w - 1) {
+            for (o, &i) in row_out[d..].iter_mut().zip(&row_in[..w - d]) {
+                *o |= i;
+            }
+            for (o, &i) in row_out[..w - d].iter_mut().zip(&row_in[d..]) {
+                *o |= i;
+            }
         }
     }
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
-        for x in 0..w {
-            out[y * w + x] = (a..=b).any(|yy| tmp[yy * w + x]);
+    let mut out = tmp.clone();
+    for d in 1..=r.min(h - 1) {
+        let s = d * w;
+        for (o, &i) in out[s..].iter_mut().zip(&tmp[..w * h - s]) {
+            *o |= i;
+        }
+        for (o, &i) in out[..w * h - s].iter_mut().zip(&tmp[s..]) {
+            *o |= i;
         }
     }
     out
@@ -399,6 +414,10 @@ pub fn geometric_term(
     )?;
     let (w, h) = current.depth.dimensions();
     let (wu, hu) = (w as usize, h as usize);
+    if wu == 0 || hu == 0 {
+        let (fw, fh) = current.full_size;
+        return Ok(FloatImage::new(fw, fh));
+    }
     let z = current.depth.as_raw();
     let s = min_filter(sd.depth.as_raw(), wu, hu, params.align_radius as usize);
     let near: Vec<bool> = z
@@ -409,20 +428,28 @@ pub fn geometric_term(
     let r = params.open_radius as usize;
     let opened = dilate(&erode(&near, wu, hu, r), wu, hu, r);
     let mut mask = dilate(&opened, wu, hu, params.dilate_radius as usize);
+    let hole: Vec<bool> = z
+        .iter()
+        .map(|&z| z.is_nan() || z <= params.min_depth)
+        .collect();
     for _ in 0..params.fill_steps {
         let grown = dilate(&mask, wu, hu, 1);
-        for (k, m) in mask.iter_mut().enumerate() {
-            if z[k].is_nan() || z[k] <= params.min_depth {
-                *m = grown[k];
+        for ((m, &g), &hole) in mask.iter_mut().zip(&grown).zip(&hole) {
+            if hole {
+                *m = g;
             }
         }
     }
-    let f = current.factor;
+    // Nearest working pixel of every full-resolution pixel, a row at a time.
+    let f = current.factor as usize;
     let (fw, fh) = current.full_size;
-    Ok(FloatImage::from_fn(fw, fh, |x, y| {
-        let (i, j) = ((x / f).min(w - 1), (y / f).min(h - 1));
-        Luma([if mask[(j * w + i) as usize] { 1.0 } else { 0.0 }])
-    }))
+    let cols: Vec<usize> = (0..fw as usize).map(|x| (x / f).min(wu - 1)).collect();
+    let mut out = Vec::with_capacity(fw as usize * fh as usize);
+    for y in 0..fh as usize {
+        let row = &mask[(y / f).min(hu - 1) * wu..][..wu];
+        out.extend(cols.iter().map(|&i| if row[i] { 1.0f32 } else { 0.0 }));
+    }
+    Ok(FloatImage::from_raw(fw, fh, out).unwrap_or_else(|| FloatImage::new(fw, fh)))
 }
 
 /// Indices of the neighbour views of frame `t` among frames with timestamps `stamps`: frames
@@ -528,6 +555,70 @@ mod tests {
         StaticDepthParams {
             working_width: 80,
             ..Default::default()
+        }
+    }
+
+    /// Minimum filter by its definition: every window visited pixel by pixel.
+    fn min_filter_naive(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+        let fmin = |a: f32, b: f32| if b < a || a.is_nan() { b } else { a };
+        let mut out = vec![f32::NAN; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut m = f32::NAN;
+                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        m = fmin(m, v[yy * w + xx]);
+                    }
+                }
+                out[y * w + x] = m;
+            }
+        }
+        out
+    }
+
+    /// Dilation by its definition.
+    fn dilate_naive(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+        let mut out = vec![false; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                out[y * w + x] = (y.saturating_sub(r)..=(y + r).min(h - 1))
+                    .any(|yy| (x.saturating_sub(r)..=(x + r).min(w - 1)).any(|xx| m[yy * w + xx]));
+            }
+        }
+        out
+    }
+
+    /// A small deterministic generator for the law tests.
+    fn lcg(state: &mut u64) -> u32 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*state >> 33) as u32
+    }
+
+    #[test]
+    fn fast_morphology_equals_its_definition() {
+        let mut st = 7u64;
+        for (w, h) in [(1, 1), (1, 7), (9, 1), (13, 11), (40, 30)] {
+            for r in 0..5 {
+                let mask: Vec<bool> = (0..w * h).map(|_| lcg(&mut st) % 5 == 0).collect();
+                assert_eq!(
+                    dilate(&mask, w, h, r),
+                    dilate_naive(&mask, w, h, r),
+                    "{w}x{h} r{r}"
+                );
+                let v: Vec<f32> = (0..w * h)
+                    .map(|_| match lcg(&mut st) % 4 {
+                        0 => f32::NAN,
+                        k => 0.1 + (lcg(&mut st) % 1000) as f32 * 0.01 * k as f32,
+                    })
+                    .collect();
+                let (a, b) = (min_filter(&v, w, h, r), min_filter_naive(&v, w, h, r));
+                assert!(
+                    a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+                    "{w}x{h} r{r}"
+                );
+            }
         }
     }
 
