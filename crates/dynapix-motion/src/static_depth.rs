@@ -601,7 +601,7 @@ mod tests {
         let mut st = 7u64;
         for (w, h) in [(1, 1), (1, 7), (9, 1), (13, 11), (40, 30)] {
             for r in 0..5 {
-                let mask: Vec<bool> = (0..w * h).map(|_| lcg(&mut st) % 5 == 0).collect();
+                let mask: Vec<bool> = (0..w * h).map(|_| lcg(&mut st).is_multiple_of(5)).collect();
                 assert_eq!(
                     dilate(&mask, w, h, r),
                     dilate_naive(&mask, w, h, r),
