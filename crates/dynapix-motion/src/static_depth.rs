@@ -197,7 +197,127 @@ pub struct StaticDepth {
 
 /// Forward-splats `view` into the current camera at working resolution, keeping the nearest
 /// surface per pixel (`INFINITY` = nothing).
+///
+/// The points are transformed and projected in blocks without branches (invalid points are
+/// masked, not skipped), so the compiler vectorises the arithmetic; the nearest-surface
+/// writes follow per block. The arithmetic is the same operations in the same order as a
+/// point at a time ([`PinholeCamera::project`], [`PixelRays::project`]), so the result is
+/// identical bit for bit (test `block_splat_equals_the_point_by_point_splat`).
+///
+/// [`PixelRays::project`]: dynapix_geometry::camera::PixelRays::project
 fn splat_nearest(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        unsafe { splat_nearest_avx2(cam, table, rays, view, out) };
+        return;
+    }
+    splat_nearest_blocks(cam, table, rays, view, out);
+}
+
+/// [`splat_nearest_blocks`] compiled for AVX2 (4 lanes of `f64`). No FMA: the rounding is
+/// that of the baseline build.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn splat_nearest_avx2(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
+    splat_nearest_blocks(cam, table, rays, view, out);
+}
+
+/// Points per block of [`splat_nearest_blocks`].
+const SPLAT_BLOCK: usize = 512;
+
+#[inline(always)]
+fn splat_nearest_blocks(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
+    let f = view.depth.factor as f64;
+    // Dividing by a power of two is multiplying by its reciprocal, bit for bit; other
+    // factors keep the division.
+    let pow2 = view.depth.factor.is_power_of_two();
+    let inv_f = 1.0 / f;
+    let d = view.depth.depth.as_raw();
+    let (w, h) = view.depth.depth.dimensions();
+    let (wf, hf) = (w as f64, h as f64);
+    let r = *view.t_cs.rotation.to_rotation_matrix().matrix();
+    let t = view.t_cs.translation.vector;
+    let (r00, r01, r02) = (r[(0, 0)], r[(0, 1)], r[(0, 2)]);
+    let (r10, r11, r12) = (r[(1, 0)], r[(1, 1)], r[(1, 2)]);
+    let (r20, r21, r22) = (r[(2, 0)], r[(2, 1)], r[(2, 2)]);
+    let (t0, t1, t2) = (t.x, t.y, t.z);
+    let (fx, fy, cx, cy) = (cam.fx, cam.fy, cam.cx, cam.cy);
+    let (dist, max_r2) = match table {
+        Some(t) => (t.camera().dist, t.max_r2()),
+        None => ([0.0; 5], 0.0),
+    };
+    let [k1, k2, p1, p2, k3] = dist;
+    let distorted = table.is_some();
+    let mut idx = [0u32; SPLAT_BLOCK];
+    let mut zs = [0f32; SPLAT_BLOCK];
+    for (dc, rc) in d.chunks(SPLAT_BLOCK).zip(rays.rays.chunks(SPLAT_BLOCK)) {
+        let n = dc.len().min(rc.len());
+        for k in 0..n {
+            let z = dc[k];
+            let ray = rc[k];
+            let ok = !(z.is_nan() || z <= 0.0) & ray[0].is_finite();
+            let z = z as f64;
+            // `R·(x, y, z) + t`, summed column by column as nalgebra's matrix product does.
+            let (x, y) = (ray[0] * z, ray[1] * z);
+            let px = r00 * x + r01 * y + r02 * z + t0;
+            let py = r10 * x + r11 * y + r12 * z + t1;
+            let pz = r20 * x + r21 * y + r22 * z + t2;
+            let ok = ok & (pz > 0.0);
+            let (ux, uy, ok) = if distorted {
+                let (x, y) = (px / pz, py / pz);
+                let r2 = x * x + y * y;
+                let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+                let dx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+                let dy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+                (fx * dx + cx, fy * dy + cy, ok & (r2 <= max_r2))
+            } else {
+                (fx * px / pz + cx, fy * py / pz + cy, ok)
+            };
+            // Nearest working pixel, exactly as `f64::round` (half away from zero) followed
+            // by the bounds check: inside the image means x + 0.5 in (0, w).
+            let (u, v) = if pow2 {
+                (ux * inv_f + 0.5, uy * inv_f + 0.5)
+            } else {
+                (ux / f + 0.5, uy / f + 0.5)
+            };
+            let ok = ok & (u > 0.0) & (v > 0.0) & (u < wf) & (v < hf);
+            let i = (v as u32).wrapping_mul(w).wrapping_add(u as u32);
+            idx[k] = if ok { i } else { u32::MAX };
+            zs[k] = pz as f32;
+        }
+        for (&i, &zf) in idx[..n].iter().zip(&zs[..n]) {
+            if let Some(o) = out.get_mut(i as usize)
+                && zf < *o
+            {
+                *o = zf;
+            }
+        }
+    }
+}
+
+/// [`splat_nearest`] a point at a time with early exits: the test reference it must equal
+/// bit for bit.
+#[cfg(test)]
+fn splat_nearest_reference(
     cam: &PinholeCamera,
     table: Option<&dynapix_geometry::camera::PixelRays>,
     rays: &Rays,
@@ -245,6 +365,9 @@ fn splat_nearest(
     }
 }
 
+/// The static depth of the current view from its neighbour `views` (see the module
+/// documentation): every view is splatted at working resolution, then per pixel the farthest
+/// depth that `min_support` views agree on is kept, refined to the median of those views.
 pub fn static_depth(
     cam: &PinholeCamera,
     views: &[DepthView<'_>],
@@ -281,32 +404,117 @@ pub fn static_depth(
             out
         })
         .collect();
+    // Per pixel the views' depths are sorted, LANES pixels at a time, by a sorting network
+    // over the views (branch-free min/max, vectorised across the pixels), then scanned.
+    let rows = splats.len().next_power_of_two();
+    let network = sorting_network(rows);
+    let wu = w as usize;
     let mut depth = vec![f32::NAN; n];
-    depth
-        .par_chunks_mut(w as usize)
-        .enumerate()
-        .for_each(|(j, row)| {
-            let mut vals: Vec<f32> = Vec::with_capacity(splats.len());
-            for (i, out) in row.iter_mut().enumerate() {
-                let k = j * w as usize + i;
-                vals.clear();
-                vals.extend(splats.iter().map(|s| s[k]).filter(|z| z.is_finite()));
-                *out = farthest_supported(&mut vals, params);
+    depth.par_chunks_mut(wu).enumerate().for_each(|(j, row)| {
+        let mut cols = vec![[f32::INFINITY; LANES]; rows];
+        let mut desc: Vec<f32> = Vec::with_capacity(splats.len());
+        for i0 in (0..wu).step_by(LANES) {
+            let m = LANES.min(wu - i0);
+            let k0 = j * wu + i0;
+            for (c, s) in cols.iter_mut().zip(&splats) {
+                c[..m].copy_from_slice(&s[k0..k0 + m]);
+                c[m..].fill(f32::INFINITY);
             }
-        });
+            for c in &mut cols[splats.len()..] {
+                *c = [f32::INFINITY; LANES];
+            }
+            sort_lanes(&mut cols, &network);
+            for (l, out) in row[i0..i0 + m].iter_mut().enumerate() {
+                desc.clear();
+                desc.extend(cols.iter().rev().map(|c| c[l]).filter(|z| z.is_finite()));
+                *out = farthest_supported_in_sorted(&desc, params);
+            }
+        }
+    });
     Ok(StaticDepth {
         depth: FloatImage::from_raw(w, h, depth).unwrap_or_else(|| FloatImage::new(w, h)),
         factor,
     })
 }
 
+/// Pixels sorted together by [`sort_lanes`].
+const LANES: usize = 8;
+
+/// Batcher's odd–even merge sort for `n` (a power of two) inputs: the compare-exchange pairs
+/// `(i, j)`, `i < j`, that leave any input sorted ascending when each pair is put in order.
+fn sorting_network(n: usize) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    let mut p = 1;
+    while p < n {
+        let mut k = p;
+        while k >= 1 {
+            let mut j = k % p;
+            while j + k < n {
+                for i in 0..k.min(n - j - k) {
+                    if (i + j) / (2 * p) == (i + j + k) / (2 * p) {
+                        pairs.push((i + j, i + j + k));
+                    }
+                }
+                j += 2 * k;
+            }
+            k /= 2;
+        }
+        p *= 2;
+    }
+    pairs
+}
+
+/// Sorts every lane of `cols` ascending (row `r` holds the `r`-th value of each lane) with a
+/// network from [`sorting_network`]. The values must not be NaN. Sorting the same values
+/// gives the same sequence whatever the algorithm, so this equals a per-pixel sort.
+fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        unsafe { sort_lanes_avx2(cols, network) };
+        return;
+    }
+    sort_lanes_body(cols, network);
+}
+
+/// [`sort_lanes_body`] compiled for AVX2 (8 lanes of `f32` per instruction).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sort_lanes_avx2(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
+    sort_lanes_body(cols, network);
+}
+
+#[inline(always)]
+fn sort_lanes_body(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
+    for &(i, j) in network {
+        let (Some(&a), Some(&b)) = (cols.get(i), cols.get(j)) else {
+            continue;
+        };
+        let mut lo = a;
+        let mut hi = b;
+        for l in 0..LANES {
+            let swap = b[l] < a[l];
+            lo[l] = if swap { b[l] } else { a[l] };
+            hi[l] = if swap { a[l] } else { b[l] };
+        }
+        cols[i] = lo;
+        cols[j] = hi;
+    }
+}
+
 /// The farthest value that at least `min_support` values agree with (within `tol`), refined
 /// to the median of the values agreeing with it; `NaN` when none is supported.
+#[cfg(test)]
 fn farthest_supported(vals: &mut [f32], params: &StaticDepthParams) -> f32 {
+    vals.sort_unstable_by(|a, b| b.total_cmp(a));
+    farthest_supported_in_sorted(vals, params)
+}
+
+/// [`farthest_supported`] of values already sorted descending.
+fn farthest_supported_in_sorted(vals: &[f32], params: &StaticDepthParams) -> f32 {
     if vals.len() < params.min_support {
         return f32::NAN;
     }
-    vals.sort_unstable_by(|a, b| b.total_cmp(a));
     for (k, &v) in vals.iter().enumerate() {
         let tol = params.tol(v);
         // Sorted descending: the values within tol of v are a contiguous run around k.
@@ -618,6 +826,104 @@ mod tests {
                     a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
                     "{w}x{h} r{r}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn block_splat_equals_the_point_by_point_splat() {
+        let mut st = 3u64;
+        for (w, h, distorted) in [(80u32, 60u32, false), (80, 60, true), (96, 72, true)] {
+            let mut c = cam(w, h);
+            if distorted {
+                c.dist = [0.262383, -0.953104, -0.005358, 0.002628, 1.163314];
+            }
+            let table = pixel_rays(&c);
+            for working_width in [80, 40, 32] {
+                let p = StaticDepthParams {
+                    working_width,
+                    ..Default::default()
+                };
+                // Depths with holes, NaN and values near the camera.
+                let depth = FloatImage::from_fn(w, h, |_, _| {
+                    Luma([match lcg(&mut st) % 10 {
+                        0 => 0.0,
+                        1 => f32::NAN,
+                        2 => 0.05,
+                        _ => 0.5 + (lcg(&mut st) % 4000) as f32 * 0.001,
+                    }])
+                });
+                let wd = WorkingDepth::new(&depth, &p);
+                let (ww, wh) = wd.depth.dimensions();
+                let rays = Rays::new(&c, wd.factor, ww, wh);
+                for _ in 0..20 {
+                    let mut xi = [0.0; 6];
+                    for v in &mut xi {
+                        *v = ((lcg(&mut st) % 2001) as f64 - 1000.0) * 2e-4;
+                    }
+                    let view = DepthView {
+                        depth: &wd,
+                        t_cs: exp(&Vector6::from_row_slice(&xi)),
+                    };
+                    let n = (ww * wh) as usize;
+                    let (mut a, mut b) = (vec![f32::INFINITY; n], vec![f32::INFINITY; n]);
+                    splat_nearest(&c, table.as_deref(), &rays, &view, &mut a);
+                    splat_nearest_reference(&c, table.as_deref(), &rays, &view, &mut b);
+                    assert!(a.iter().any(|z| z.is_finite()));
+                    assert!(
+                        a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+                        "{w}x{h} distorted {distorted} working width {working_width}"
+                    );
+                    let mut c2 = vec![f32::INFINITY; n];
+                    splat_nearest_blocks(&c, table.as_deref(), &rays, &view, &mut c2);
+                    assert!(c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_sorting_network_sorts_every_lane() {
+        let mut st = 5u64;
+        for n in [1usize, 2, 4, 8, 16, 32, 64] {
+            let net = sorting_network(n);
+            // 0-1 principle for the small ones, random values with ties for all.
+            if n <= 16 {
+                for bits in 0u32..(1 << n) {
+                    let mut cols: Vec<[f32; LANES]> =
+                        (0..n).map(|r| [((bits >> r) & 1) as f32; LANES]).collect();
+                    sort_lanes(&mut cols, &net);
+                    assert!(
+                        cols.windows(2).all(|w| w[0][0] <= w[1][0]),
+                        "n {n} bits {bits}"
+                    );
+                }
+            }
+            for _ in 0..200 {
+                let mut cols: Vec<[f32; LANES]> = (0..n)
+                    .map(|_| {
+                        let mut c = [0.0; LANES];
+                        for v in &mut c {
+                            *v = match lcg(&mut st) % 8 {
+                                0 => f32::INFINITY,
+                                k => (lcg(&mut st) % 50) as f32 * 0.1 * k as f32,
+                            };
+                        }
+                        c
+                    })
+                    .collect();
+                let mut want: Vec<Vec<u32>> = (0..LANES)
+                    .map(|l| {
+                        let mut v: Vec<f32> = cols.iter().map(|c| c[l]).collect();
+                        v.sort_unstable_by(f32::total_cmp);
+                        v.into_iter().map(f32::to_bits).collect()
+                    })
+                    .collect();
+                sort_lanes(&mut cols, &net);
+                for (l, want) in want.iter_mut().enumerate() {
+                    let got: Vec<u32> = cols.iter().map(|c| c[l].to_bits()).collect();
+                    assert_eq!(&got, want, "n {n} lane {l}");
+                }
             }
         }
     }
