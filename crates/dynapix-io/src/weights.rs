@@ -51,11 +51,9 @@ impl MotionProbability {
 
     /// P = 1 − stored/1000 from the stored 16-bit form (values above 1000 clamp to P = 0).
     pub fn from_stored(stored: &Gray16Image) -> Self {
-        Self(ImageBuffer::from_fn(
-            stored.width(),
-            stored.height(),
-            |x, y| Luma([(1.0 - stored.get_pixel(x, y)[0] as f32 / PROB_PNG_SCALE).max(0.0)]),
-        ))
+        Self(map_stored(stored, |v| {
+            (1.0 - v as f32 / PROB_PNG_SCALE).max(0.0)
+        }))
     }
 
     /// The static weights the SLAM backend gets for this map, quantised like the stored file
@@ -72,9 +70,16 @@ impl MotionProbability {
 /// The stored 16-bit form of a probability image (the one codec; see
 /// [`MotionProbability::to_stored`]).
 pub(crate) fn stored_image(p: &ProbMap) -> Gray16Image {
-    ImageBuffer::from_fn(p.width(), p.height(), |x, y| {
-        Luma([stored_of(p.get_pixel(x, y)[0])])
-    })
+    let raw: Vec<u16> = p.as_raw().iter().map(|&v| stored_of(v)).collect();
+    ImageBuffer::from_raw(p.width(), p.height(), raw)
+        .unwrap_or_else(|| ImageBuffer::new(p.width(), p.height()))
+}
+
+/// `f` of every stored value, as an `f32` image of the same size.
+fn map_stored(stored: &Gray16Image, f: impl Fn(u16) -> f32) -> ImageBuffer<Luma<f32>, Vec<f32>> {
+    let raw: Vec<f32> = stored.as_raw().iter().map(|&v| f(v)).collect();
+    ImageBuffer::from_raw(stored.width(), stored.height(), raw)
+        .unwrap_or_else(|| ImageBuffer::new(stored.width(), stored.height()))
 }
 
 /// `trunc((1 − P)·1000)` in `f32`, P clamped to [0, 1]; NaN counts as P = 1.
@@ -97,11 +102,7 @@ impl StaticWeights {
     /// w = stored/1000 from the stored 16-bit form of the reference files (how the reference
     /// SLAM reads them).
     pub fn from_stored(stored: &Gray16Image) -> Self {
-        Self(ImageBuffer::from_fn(
-            stored.width(),
-            stored.height(),
-            |x, y| Luma([stored.get_pixel(x, y)[0] as f32 / PROB_PNG_SCALE]),
-        ))
+        Self(map_stored(stored, |v| v as f32 / PROB_PNG_SCALE))
     }
 
     /// The threshold ablation of the paper's supplementary material: pixels with

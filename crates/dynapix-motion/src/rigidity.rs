@@ -43,7 +43,6 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::splat::pixel_rays;
 use crate::{FloatImage, MotionError, check_size};
 
 /// Parameters of the rigidity cue. `Default` holds the values of the prototype.
@@ -938,10 +937,10 @@ pub fn rigidity_from_residuals(
     Ok((p, combined))
 }
 
-/// The undistorted ray table of `cam`: the shared one of a distorted camera
-/// ([`pixel_rays`]), else a fresh table of the pinhole rays.
+/// The undistorted ray table of `cam`, distorted or not, shared through the process-wide
+/// cache of [`crate::splat::pixel_rays`] (built once per camera, not once per frame).
 pub fn camera_rays(cam: &PinholeCamera) -> Arc<PixelRays> {
-    pixel_rays(cam).unwrap_or_else(|| Arc::new(PixelRays::new(cam)))
+    crate::splat::cached_rays(cam)
 }
 
 /// The rigidity cue of `cur` from `neighbours` with DIS flow of preset

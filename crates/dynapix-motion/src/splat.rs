@@ -93,7 +93,7 @@ struct Projected {
 /// How many cameras' ray tables [`pixel_rays`] keeps (a run uses one camera; tests a few).
 const RAY_CACHE_SIZE: usize = 4;
 
-/// Ray tables of the distorted cameras seen so far, most recent last.
+/// Ray tables of the cameras seen so far, most recent last.
 static RAY_CACHE: Mutex<Vec<Arc<PixelRays>>> = Mutex::new(Vec::new());
 
 /// The per-pixel undistorted rays of `cam`, built on first use and shared afterwards (a
@@ -104,10 +104,17 @@ pub fn pixel_rays(cam: &PinholeCamera) -> Option<Arc<PixelRays>> {
     if !cam.is_distorted() {
         return None;
     }
+    Some(cached_rays(cam))
+}
+
+/// The ray table of any camera, distorted or not, from the cache of [`pixel_rays`] (built on
+/// first use). Callers that walk the table for every pixel (the rigidity cue) use this
+/// instead of building a `PixelRays` per frame.
+pub fn cached_rays(cam: &PinholeCamera) -> Arc<PixelRays> {
     // A panic elsewhere while the lock was held leaves a valid list behind: keep using it.
     let mut cache = RAY_CACHE.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(r) = cache.iter().find(|r| r.camera() == cam) {
-        return Some(Arc::clone(r));
+        return Arc::clone(r);
     }
     // Built under the lock so that parallel splats of the same camera build it once.
     let rays = Arc::new(PixelRays::new(cam));
@@ -115,7 +122,7 @@ pub fn pixel_rays(cam: &PinholeCamera) -> Option<Arc<PixelRays>> {
         cache.remove(0);
     }
     cache.push(Arc::clone(&rays));
-    Some(rays)
+    rays
 }
 
 fn project_all(

@@ -20,7 +20,6 @@
 use dynapix_geometry::camera::PinholeCamera;
 use dynapix_geometry::se3::Se3;
 use image::Luma;
-use nalgebra::Point3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -342,7 +341,7 @@ fn splat_nearest_reference(
         if p.z <= 0.0 {
             continue;
         }
-        let p = Point3::from(p);
+        let p = nalgebra::Point3::from(p);
         let uv = match table {
             Some(t) => t.project(&p),
             None => cam.project(&p),
