@@ -5,13 +5,19 @@
 # no background/ folder), offline and online.
 #
 #   scripts/bench.sh OUT          (JSON and Markdown per run in OUT, summary in OUT/table.md)
+#   BIN=path/to/dynapix scripts/bench.sh OUT    (another build, e.g. the one before a change;
+#                                                nothing is compiled then)
 #
 # Run it on a quiet machine: stage figures are wall time inside each stage.
 set -euo pipefail
 OUT=${1:?usage: scripts/bench.sh OUT}
 here=$(cd "$(dirname "$0")/.." && pwd)
-bin="$here/target/release/dynapix"
-(cd "$here" && cargo build --release -q)
+if [ -n "${BIN:-}" ]; then
+  bin=$BIN
+else
+  bin="$here/target/release/dynapix"
+  (cd "$here" && cargo build --release -q)
+fi
 data="$here/../shared/data"
 mkdir -p "$OUT"
 seqs=()

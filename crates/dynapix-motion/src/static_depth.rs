@@ -395,14 +395,12 @@ pub fn static_depth(
     let n = (w * h) as usize;
     let rays = Rays::new(cam, factor, w, h);
     let table = pixel_rays(cam);
-    let splats: Vec<Vec<f32>> = views
-        .par_iter()
-        .map(|v| {
-            let mut out = vec![f32::INFINITY; n];
-            splat_nearest(cam, table.as_deref(), &rays, v, &mut out);
-            out
-        })
-        .collect();
+    let mut splats = take_buffers(views.len());
+    splats.par_iter_mut().zip(views).for_each(|(out, v)| {
+        out.clear();
+        out.resize(n, f32::INFINITY);
+        splat_nearest(cam, table.as_deref(), &rays, v, out);
+    });
     // Per pixel the views' depths are sorted, LANES pixels at a time, by a sorting network
     // over the views (branch-free min/max, vectorised across the pixels), then scanned.
     let rows = splats.len().next_power_of_two();
@@ -430,10 +428,33 @@ pub fn static_depth(
             }
         }
     });
+    return_buffers(splats);
     Ok(StaticDepth {
         depth: FloatImage::from_raw(w, h, depth).unwrap_or_else(|| FloatImage::new(w, h)),
         factor,
     })
+}
+
+/// Splat buffers kept between calls of [`static_depth`]: a sequence splats 24 views of the
+/// same size for every frame, and fresh buffers of that size come from the operating system
+/// zeroed, page by page, every time.
+static SPLAT_BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// Largest number of splat buffers kept (two frames of 24 views in flight).
+const MAX_KEPT_BUFFERS: usize = 64;
+
+fn take_buffers(k: usize) -> Vec<Vec<f32>> {
+    let mut pool = SPLAT_BUFFERS.lock().unwrap_or_else(|e| e.into_inner());
+    let keep = pool.len().saturating_sub(k);
+    let mut out = pool.split_off(keep);
+    out.resize_with(k, Vec::new);
+    out
+}
+
+fn return_buffers(mut bufs: Vec<Vec<f32>>) {
+    let mut pool = SPLAT_BUFFERS.lock().unwrap_or_else(|e| e.into_inner());
+    bufs.truncate(MAX_KEPT_BUFFERS.saturating_sub(pool.len()));
+    pool.append(&mut bufs);
 }
 
 /// Pixels sorted together by [`sort_lanes`].

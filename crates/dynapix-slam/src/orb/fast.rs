@@ -106,6 +106,37 @@ fn corner_score(data: &[u8], c: usize, off: &[isize; 16], threshold: i32) -> i32
 /// (x0, y0).
 pub(crate) fn detect_roi(
     img: &Plane,
+    roi: (usize, usize, usize, usize),
+    threshold: i32,
+    scratch: &mut FastScratch,
+    out: &mut Vec<Corner>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        unsafe { detect_roi_avx2(img, roi, threshold, scratch, out) };
+        return;
+    }
+    detect_roi_body(img, roi, threshold, scratch, out);
+}
+
+/// [`detect_roi_body`] compiled for AVX2: the branch-free pre-test runs 32 pixels per
+/// instruction instead of 16. Integer arithmetic only, so the corners are the same.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn detect_roi_avx2(
+    img: &Plane,
+    roi: (usize, usize, usize, usize),
+    threshold: i32,
+    scratch: &mut FastScratch,
+    out: &mut Vec<Corner>,
+) {
+    detect_roi_body(img, roi, threshold, scratch, out);
+}
+
+#[inline(always)]
+fn detect_roi_body(
+    img: &Plane,
     (x0, y0, x1, y1): (usize, usize, usize, usize),
     threshold: i32,
     scratch: &mut FastScratch,
@@ -301,6 +332,33 @@ mod tests {
         let edge = plane(30, 30, |x, _| if x < 15 { 0 } else { 255 });
         detect_roi(&edge, (0, 0, 30, 30), 7, &mut s, &mut out);
         assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn avx2_and_baseline_detection_agree() {
+        // Textured noise, blurred a little so corners have unique maxima.
+        // A hash of the position as noise.
+        let noise = plane(97, 61, |x, y| {
+            let h = ((x as u64) << 32 | y as u64)
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 56) as u8
+        });
+        let img = super::super::imgproc::gaussian_blur(&noise, 1, 0.6);
+        let (mut s1, mut s2) = (FastScratch::default(), FastScratch::default());
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let mut found = 0;
+        for (roi, th) in [
+            ((0, 0, 97, 61), 7),
+            ((5, 3, 70, 40), 20),
+            ((11, 9, 97, 61), 12),
+        ] {
+            detect_roi(&img, roi, th, &mut s1, &mut a);
+            detect_roi_body(&img, roi, th, &mut s2, &mut b);
+            assert_eq!(a, b, "{roi:?} {th}");
+            found += a.len();
+        }
+        assert!(found > 20, "{found}");
     }
 
     #[test]
