@@ -138,7 +138,6 @@ fn gaussian_kernel_q8(radius: usize, sigma: f64) -> Vec<i32> {
 
 /// Separable Gaussian blur (window `2·radius+1`, `sigma`) with reflect-101 borders, in 8.8
 /// fixed point per pass and rounding at the end (as OpenCV's 8-bit smoothing).
-#[allow(clippy::needless_range_loop)] // indexed loops vectorise here, zipped iterators did not
 pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
@@ -157,6 +156,7 @@ fn gaussian_blur_avx2(src: &Plane, radius: usize, sigma: f64) -> Plane {
 }
 
 #[inline(always)]
+#[allow(clippy::needless_range_loop)] // indexed loops vectorise here, zipped iterators did not
 fn gaussian_blur_body(src: &Plane, radius: usize, sigma: f64) -> Plane {
     let (w, h) = (src.w, src.h);
     if w == 0 || h == 0 {
