@@ -259,6 +259,11 @@ impl PixelRays {
         r[0].is_finite().then_some(r)
     }
 
+    /// Every pixel's ray, row by row (`width × height`, NaN where the undistortion failed).
+    pub fn all(&self) -> &[[f64; 2]] {
+        &self.rays
+    }
+
     /// The rays of image row `y` (NaN where the undistortion failed); empty outside the image.
     pub fn row(&self, y: u32) -> &[[f64; 2]] {
         if y >= self.camera.height {

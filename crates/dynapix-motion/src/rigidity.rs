@@ -838,6 +838,9 @@ fn residual_row_avx2(
     residual_row_body(pair, model, r, t, y, row);
 }
 
+/// Pixels per block of [`residual_row_body`].
+const RESIDUAL_BLOCK: usize = 64;
+
 #[inline(always)]
 fn residual_row_body(
     pair: &Pair<'_>,
@@ -850,44 +853,75 @@ fn residual_row_body(
     let cam = pair.rays.camera();
     let (w, h) = (cam.width as usize, cam.height as usize);
     let (xmax, ymax) = ((cam.width - 1) as f64, (cam.height - 1) as f64);
+    let (fx, fy) = (cam.fx, cam.fy);
     let zi = &pair.depth_i.as_raw()[y * w..][..w];
     let zj = pair.depth_j.as_raw();
     let flow = &pair.flow.data[y * w..][..w];
     let rays_i = pair.rays.row(y as u32);
+    let rays = pair.rays.all();
     let min_depth = pair.min_depth;
-    for (x, o) in row.iter_mut().enumerate().take(w) {
-        *o = f32::NAN;
-        let z = zi[x] as f64;
-        if z.is_nan() || z <= min_depth {
-            continue;
+    let (r00, r01, r02) = (r[(0, 0)], r[(0, 1)], r[(0, 2)]);
+    let (r10, r11, r12) = (r[(1, 0)], r[(1, 1)], r[(1, 2)]);
+    let (r20, r21, r22) = (r[(2, 0)], r[(2, 1)], r[(2, 2)]);
+    let (t0, t1, t2) = (t.x, t.y, t.z);
+    let (fxs, fys) = (model.fx_over_sigma, model.fy_over_sigma);
+    let (sz_a, sz_b, min_pz) = (model.sz_a, model.sz_b, model.min_pz);
+    let mut ok = [false; RESIDUAL_BLOCK];
+    let mut at = [0usize; RESIDUAL_BLOCK];
+    let mut z2 = [0f64; RESIDUAL_BLOCK];
+    let mut rj = [[0f64; 2]; RESIDUAL_BLOCK];
+    let mut du = [0f64; RESIDUAL_BLOCK];
+    let mut dv = [0f64; RESIDUAL_BLOCK];
+    let row = &mut row[..w];
+    for x0 in (0..w).step_by(RESIDUAL_BLOCK) {
+        let n = RESIDUAL_BLOCK.min(w - x0);
+        // The source pixel and its flow target, without branches.
+        for j in 0..n {
+            let x = x0 + j;
+            let z = zi[x] as f64;
+            let f = flow[x];
+            let u2 = x as f64 + f[0] as f64;
+            let v2 = y as f64 + f[1] as f64;
+            let inside = (0.0..=xmax).contains(&u2) & (0.0..=ymax).contains(&v2);
+            let (ur, vr) = (u2.round(), v2.round());
+            let valid = !(z.is_nan() || z <= min_depth) & rays_i[x][0].is_finite() & inside;
+            let k = (vr as usize).wrapping_mul(w).wrapping_add(ur as usize);
+            ok[j] = valid & (k < w * h);
+            at[j] = if ok[j] { k } else { 0 };
+            du[j] = u2 - ur;
+            dv[j] = v2 - vr;
         }
-        let ri = rays_i[x];
-        if !ri[0].is_finite() {
-            continue;
+        // The target's depth and ray (a gather).
+        for j in 0..n {
+            z2[j] = zj[at[j]] as f64;
+            rj[j] = rays[at[j]];
         }
-        let f = flow[x];
-        let u2 = x as f64 + f[0] as f64;
-        let v2 = y as f64 + f[1] as f64;
-        if !((0.0..=xmax).contains(&u2) && (0.0..=ymax).contains(&v2)) {
-            continue;
+        // The residual, without branches; a pixel that failed a test gets NaN.
+        for j in 0..n {
+            let x = x0 + j;
+            let z = zi[x] as f64;
+            let ri = rays_i[x];
+            let valid = ok[j] & !(z2[j].is_nan() || z2[j] <= min_depth) & rj[j][0].is_finite();
+            let (ax, ay, az) = (ri[0] * z, ri[1] * z, z);
+            let bn0 = rj[j][0] + du[j] / fx;
+            let bn1 = rj[j][1] + dv[j] / fy;
+            let bz = z2[j];
+            // `R·a + t`, summed column by column as nalgebra's matrix product does.
+            let px = r00 * ax + r01 * ay + r02 * az + t0;
+            let py = r10 * ax + r11 * ay + r12 * az + t1;
+            let pz = r20 * ax + r21 * ay + r22 * az + t2;
+            // `Model::r2`: a NaN depth counts as behind the camera.
+            let ex = (px / pz - bn0) * fxs;
+            let ey = (py / pz - bn1) * fys;
+            let ez = (pz - bz) / (sz_a * bz * bz + sz_b);
+            let r2 = ex * ex + ey * ey + ez * ez;
+            let r2 = if pz.is_nan() || pz <= min_pz {
+                f64::INFINITY
+            } else {
+                r2
+            };
+            row[x] = if valid { r2.sqrt() as f32 } else { f32::NAN };
         }
-        let (ur, vr) = (u2.round(), v2.round());
-        let (ui, vi) = (ur as usize, vr as usize);
-        if ui >= w || vi >= h {
-            continue;
-        }
-        let k = vi * w + ui;
-        let z2 = zj[k] as f64;
-        if z2.is_nan() || z2 <= min_depth {
-            continue;
-        }
-        let rj = pair.rays.row(vi as u32)[ui];
-        if !rj[0].is_finite() {
-            continue;
-        }
-        let a = Vector3::new(ri[0] * z, ri[1] * z, z);
-        let bn = [rj[0] + (u2 - ur) / cam.fx, rj[1] + (v2 - vr) / cam.fy];
-        *o = model.r2(&(r * a + t), bn, z2).sqrt() as f32;
     }
 }
 
