@@ -170,14 +170,16 @@ impl<'a> RigidityJob<'a> {
         Ok(self.frame_with(i, &loaded, &cam, &flow)?.0)
     }
 
-    /// Computes every frame in order, in parallel chunks (each frame's images are decoded
-    /// once per chunk that needs them); `each` gets every frame's P in frame order. Bad
-    /// frames ([`Input::bad_frames`]) get no map.
+    /// Computes every frame, in parallel chunks in frame order (each frame's images are
+    /// decoded once per chunk that needs them); `each` gets every frame's P on the thread
+    /// that computed it (so writing the maps is parallel too), in no particular order within
+    /// a chunk. The first error in frame order is returned. Bad frames
+    /// ([`Input::bad_frames`]) get no map.
     pub fn run(
         &self,
         progress: &dyn Progress,
         label: &str,
-        mut each: impl FnMut(usize, FloatImage) -> Result<()>,
+        each: impl Fn(usize, FloatImage) -> Result<()> + Sync,
     ) -> Result<RigidityStats> {
         self.params
             .validate()
@@ -213,13 +215,16 @@ impl<'a> RigidityJob<'a> {
                 let (k, g) = r?;
                 loaded.insert(k, g);
             }
-            let out = frames
+            let out: Vec<Result<RigidityStats>> = frames
                 .par_iter()
-                .map(|&i| self.frame_with(i, &loaded, &cam, &flow))
-                .collect::<Result<Vec<_>>>()?;
-            for (&i, (p, s)) in frames.iter().zip(out) {
-                stats.add(s);
-                each(i, p)?;
+                .map(|&i| {
+                    let (p, s) = self.frame_with(i, &loaded, &cam, &flow)?;
+                    each(i, p)?;
+                    Ok(s)
+                })
+                .collect();
+            for s in out {
+                stats.add(s?);
                 task.step("");
             }
         }
