@@ -208,6 +208,22 @@ impl OrbExtractor {
         img: &GrayImage,
         keep: Option<&KeepMask>,
     ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        self.extract_cached(img, keep, &mut None)
+    }
+
+    /// [`OrbExtractor::extract_where`] reusing the frame's FAST corners from an earlier
+    /// extraction of the same image: the corners of every cell are found before the keep mask
+    /// is applied, so they are the same whatever the mask, and a multi-pass run needs them
+    /// once per frame. `corners` is used when it was made by an extractor with the same
+    /// parameters from an image of the same size (the caller vouches for the same pixels);
+    /// otherwise the corners are detected and stored in it. The result is identical to
+    /// [`OrbExtractor::extract_where`] either way.
+    pub fn extract_cached(
+        &self,
+        img: &GrayImage,
+        keep: Option<&KeepMask>,
+        corners: &mut Option<std::sync::Arc<FastCorners>>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         let (w, h) = (img.width() as usize, img.height() as usize);
         let base = Plane {
             w,
@@ -215,11 +231,36 @@ impl OrbExtractor {
             data: img.as_raw().clone(),
         };
         let pyramid = self.pyramid(base);
+        let cached = corners.clone().filter(|c| {
+            c.params == self.params && c.size == img.dimensions() && c.levels.len() == pyramid.len()
+        });
+        let detected: Option<Vec<Vec<octree::Cand>>> = match cached {
+            Some(_) => None,
+            None => Some(
+                pyramid
+                    .par_iter()
+                    .map(|plane| self.detect_level(plane))
+                    .collect(),
+            ),
+        };
+        let levels: &[Vec<octree::Cand>] = match (&cached, &detected) {
+            (Some(c), _) => &c.levels,
+            (None, Some(d)) => d,
+            (None, None) => &[],
+        };
         let per_level: Vec<(Vec<KeyPoint>, Vec<Descriptor>)> = pyramid
             .par_iter()
+            .zip(levels)
             .enumerate()
-            .map(|(level, plane)| self.process_level(level, plane, keep))
+            .map(|(level, (plane, cands))| self.describe_level(level, plane, cands, keep))
             .collect();
+        if let Some(levels) = detected {
+            *corners = Some(std::sync::Arc::new(FastCorners {
+                params: self.params.clone(),
+                size: img.dimensions(),
+                levels,
+            }));
+        }
         let n: usize = per_level.iter().map(|(k, _)| k.len()).sum();
         let mut kps = Vec::with_capacity(n);
         let mut descs = Vec::with_capacity(n);
@@ -253,26 +294,21 @@ impl OrbExtractor {
         levels
     }
 
-    /// Detection, distribution, orientation and description on one pyramid level.
-    fn process_level(
-        &self,
-        level: usize,
-        img: &Plane,
-        keep: Option<&KeepMask>,
-    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        let scale = self.scale.get(level).copied().unwrap_or(1.0);
+    /// The FAST corners of one pyramid level, cell by cell in ORB-SLAM2's order (level
+    /// coordinates relative to the detection border), before any keep mask.
+    fn detect_level(&self, img: &Plane) -> Vec<octree::Cand> {
         let min_b = EDGE_THRESHOLD - 3;
         let max_bx = img.w as i32 - EDGE_THRESHOLD + 3;
         let max_by = img.h as i32 - EDGE_THRESHOLD + 3;
         if max_bx <= min_b || max_by <= min_b {
-            return (Vec::new(), Vec::new());
+            return Vec::new();
         }
         let width = (max_bx - min_b) as f32;
         let height = (max_by - min_b) as f32;
         let n_cols = (width / CELL) as i32;
         let n_rows = (height / CELL) as i32;
         if n_cols == 0 || n_rows == 0 {
-            return (Vec::new(), Vec::new());
+            return Vec::new();
         }
         let w_cell = (width / n_cols as f32).ceil() as i32;
         let h_cell = (height / n_rows as f32).ceil() as i32;
@@ -307,13 +343,6 @@ impl OrbExtractor {
                 for c in &cell {
                     let x = c.x as i32 + j * w_cell;
                     let y = c.y as i32 + i * h_cell;
-                    if let Some(k) = keep {
-                        let lx = ((x + min_b) as f32 * scale) as u32;
-                        let ly = ((y + min_b) as f32 * scale) as u32;
-                        if !k.allows(lx, ly) {
-                            continue;
-                        }
-                    }
                     cands.push(octree::Cand {
                         x: x as f32,
                         y: y as f32,
@@ -322,6 +351,38 @@ impl OrbExtractor {
                 }
             }
         }
+        cands
+    }
+
+    /// Keep mask, distribution, orientation and description on one pyramid level, from the
+    /// level's FAST corners ([`OrbExtractor::detect_level`]).
+    fn describe_level(
+        &self,
+        level: usize,
+        img: &Plane,
+        all: &[octree::Cand],
+        keep: Option<&KeepMask>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        let scale = self.scale.get(level).copied().unwrap_or(1.0);
+        let min_b = EDGE_THRESHOLD - 3;
+        let max_bx = img.w as i32 - EDGE_THRESHOLD + 3;
+        let max_by = img.h as i32 - EDGE_THRESHOLD + 3;
+        if max_bx <= min_b || max_by <= min_b || all.is_empty() {
+            return (Vec::new(), Vec::new());
+        }
+        // The corners are whole level pixels: `x as i32` gives back the integer.
+        let cands: Vec<octree::Cand> = match keep {
+            None => all.to_vec(),
+            Some(k) => all
+                .iter()
+                .filter(|c| {
+                    let lx = ((c.x as i32 + min_b) as f32 * scale) as u32;
+                    let ly = ((c.y as i32 + min_b) as f32 * scale) as u32;
+                    k.allows(lx, ly)
+                })
+                .copied()
+                .collect(),
+        };
 
         let budget = self.per_level.get(level).copied().unwrap_or(0);
         let kept = octree::distribute(&cands, min_b, max_bx, min_b, max_by, budget);
@@ -367,6 +428,33 @@ impl OrbExtractor {
             m01 += v * v_sum;
         }
         imgproc::fast_atan2_deg(m01 as f32, m10 as f32)
+    }
+}
+
+/// The FAST corners of one frame at every pyramid level, before any keep mask: what
+/// [`OrbExtractor::extract_cached`] reuses between the passes of a run. They depend only on
+/// the grey image and the extractor's parameters, which are recorded with them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FastCorners {
+    params: OrbParams,
+    size: (u32, u32),
+    levels: Vec<Vec<octree::Cand>>,
+}
+
+impl FastCorners {
+    /// Number of corners over all levels.
+    pub fn len(&self) -> usize {
+        self.levels.iter().map(Vec::len).sum()
+    }
+
+    /// True when no level has a corner.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Approximate memory held, in bytes.
+    pub fn bytes(&self) -> usize {
+        self.len() * std::mem::size_of::<octree::Cand>() + self.levels.len() * 24
     }
 }
 
@@ -550,6 +638,14 @@ impl crate::system::FeatureExtractor for OrbExtractor {
         keep: Option<&KeepMask>,
     ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         OrbExtractor::extract_where(self, image, keep)
+    }
+    fn extract_where_cached(
+        &mut self,
+        image: &GrayImage,
+        keep: Option<&KeepMask>,
+        corners: &mut Option<std::sync::Arc<FastCorners>>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        OrbExtractor::extract_cached(self, image, keep, corners)
     }
     fn pyramid(&self) -> crate::frame::ScalePyramid {
         crate::frame::ScalePyramid::new(self.nlevels(), self.scale_factor())

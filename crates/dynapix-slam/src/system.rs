@@ -34,6 +34,19 @@ pub trait FeatureExtractor {
         let _ = keep;
         self.extract(image)
     }
+    /// [`FeatureExtractor::extract_where`], reusing the frame's FAST corners from an earlier
+    /// extraction of the same image where the extractor can (see
+    /// [`crate::orb::OrbExtractor::extract_cached`]); the result must be the same as without.
+    /// The default ignores the cache.
+    fn extract_where_cached(
+        &mut self,
+        image: &GrayImage,
+        keep: Option<&crate::orb::KeepMask>,
+        corners: &mut Option<std::sync::Arc<crate::orb::FastCorners>>,
+    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        let _ = corners;
+        self.extract_where(image, keep)
+    }
     /// The pyramid the keypoint octaves refer to.
     fn pyramid(&self) -> ScalePyramid;
 }
@@ -63,6 +76,18 @@ pub struct FeatureStage<E> {
 impl<E: FeatureExtractor> FeatureStage<E> {
     /// Extracts the features of a frame with grey image `gray` and static weights `weights`.
     pub fn extract(&mut self, gray: &GrayImage, weights: Option<&StaticWeights>) -> Features {
+        self.extract_cached(gray, weights, &mut None)
+    }
+
+    /// [`FeatureStage::extract`] reusing `corners`, the FAST corners of an earlier extraction
+    /// of the same grey image (another pass over the same frame), or storing them there; the
+    /// features are the same either way.
+    pub fn extract_cached(
+        &mut self,
+        gray: &GrayImage,
+        weights: Option<&StaticWeights>,
+        corners: &mut Option<std::sync::Arc<crate::orb::FastCorners>>,
+    ) -> Features {
         let t0 = Instant::now();
         let _stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
         let keep = match (self.static_features_min_weight, weights) {
@@ -79,10 +104,9 @@ impl<E: FeatureExtractor> FeatureStage<E> {
             }
             _ => None,
         };
-        let (keys, descriptors) = match &keep {
-            Some(k) => self.extractor.extract_where(gray, Some(k)),
-            None => self.extractor.extract(gray),
-        };
+        let (keys, descriptors) = self
+            .extractor
+            .extract_where_cached(gray, keep.as_ref(), corners);
         Features {
             keys,
             descriptors,

@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
 use dynapix_io::{Sequence, SequenceOptions, Settings};
 use dynapix_slam::frame::RgbdCamera;
-use dynapix_slam::orb::OrbParams;
+use dynapix_slam::orb::{FastCorners, OrbParams};
 use image::RgbImage;
 use serde::Serialize;
 
@@ -200,6 +200,9 @@ struct DecodedFrames {
     enabled: Arc<std::sync::atomic::AtomicBool>,
     /// Bytes used and the frames kept, by index.
     kept: Arc<Mutex<(usize, HashMap<usize, DecodedFrame>)>>,
+    /// The FAST corners of the frames' grey images, by index (kept while `enabled`; a few
+    /// tens of kilobytes per frame, outside the budget).
+    corners: Arc<Mutex<HashMap<usize, Arc<FastCorners>>>>,
 }
 
 impl std::fmt::Debug for DecodedFrames {
@@ -219,6 +222,7 @@ impl DecodedFrames {
             budget: budget_mib.saturating_mul(1 << 20),
             enabled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
             kept: Arc::new(Mutex::new((0, HashMap::new()))),
+            corners: Arc::new(Mutex::new(HashMap::new())),
         }
     }
 
@@ -433,6 +437,31 @@ impl Input {
             .store(on, std::sync::atomic::Ordering::Relaxed);
         if !on && let Ok(mut k) = self.decoded.kept.lock() {
             *k = (0, HashMap::new());
+        }
+        if !on && let Ok(mut c) = self.decoded.corners.lock() {
+            c.clear();
+        }
+    }
+
+    /// The FAST corners of frame `i`'s grey image kept by an earlier pass of this run
+    /// ([`Input::keep_fast_corners`]), if any.
+    pub fn fast_corners(&self, i: usize) -> Option<Arc<FastCorners>> {
+        self.decoded.corners.lock().ok()?.get(&i).cloned()
+    }
+
+    /// Keeps the FAST corners of frame `i`'s grey image for the later passes of a run, while
+    /// decoded frames are kept ([`Input::keep_decoded_frames`]): the corners do not depend on
+    /// a pass's weights, so every pass after the first only applies its own mask to them.
+    pub fn keep_fast_corners(&self, i: usize, corners: Arc<FastCorners>) {
+        if !self
+            .decoded
+            .enabled
+            .load(std::sync::atomic::Ordering::Relaxed)
+        {
+            return;
+        }
+        if let Ok(mut c) = self.decoded.corners.lock() {
+            c.entry(i).or_insert(corners);
         }
     }
 

@@ -402,7 +402,15 @@ fn decode(
     let gray = rgb_to_gray_orbslam(&rgb);
     drop(rgb);
     let features = match &weights {
-        Ok(w) => stage.extract(&gray, w.as_ref()),
+        Ok(w) => {
+            // Every pass detects the same FAST corners on this image: reuse them.
+            let mut corners = input.fast_corners(i);
+            let f = stage.extract_cached(&gray, w.as_ref(), &mut corners);
+            if let Some(c) = corners {
+                input.keep_fast_corners(i, c);
+            }
+            f
+        }
         // The pass stops at this frame: no features needed.
         Err(_) => Features {
             keys: Vec::new(),

@@ -134,6 +134,31 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
 }
 
 #[test]
+fn fast_corners_are_kept_for_later_passes_only_during_a_run() {
+    let seq = sequence();
+    let config = Config::default();
+    let input = open(seq, &config);
+    let gray = dynapix_slam::orb::rgb_to_gray_orbslam(&input.load_rgbd(2).unwrap().0);
+    let extractor = dynapix_slam::orb::OrbExtractor::default();
+    let mut corners = None;
+    let first = extractor.extract_cached(&gray, None, &mut corners);
+    let corners = corners.unwrap();
+    // Outside a run nothing is kept.
+    input.keep_fast_corners(2, corners.clone());
+    assert!(input.fast_corners(2).is_none());
+    input.keep_decoded_frames(true);
+    input.keep_fast_corners(2, corners.clone());
+    let back = input.fast_corners(2).unwrap();
+    assert!(std::sync::Arc::ptr_eq(&back, &corners));
+    assert!(input.fast_corners(3).is_none());
+    // Reused, they give the features of a fresh extraction.
+    let mut slot = Some(back);
+    assert_eq!(extractor.extract_cached(&gray, None, &mut slot), first);
+    input.keep_decoded_frames(false);
+    assert!(input.fast_corners(2).is_none());
+}
+
+#[test]
 fn weighted_offline_run_beats_orbslam2() {
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");

@@ -269,3 +269,39 @@ fn grade_setting_3000_features() {
     assert_eq!(k.len(), d.len());
     assert!(k.len() > 2400 && k.len() <= 3030, "{}", k.len());
 }
+
+#[test]
+fn cached_fast_corners_give_the_same_features_under_any_mask() {
+    let (w, h) = (320u32, 240u32);
+    let img = synthetic(w, h, 21);
+    let ex = OrbExtractor::default();
+    // Movers on the right: only the left 60 % and the top rows are allowed.
+    let allowed: Vec<bool> = (0..w * h)
+        .map(|k| k % w < w * 3 / 5 || k / w < 40)
+        .collect();
+    let mask = KeepMask::new(w, h, allowed).unwrap();
+    // First pass, unmasked: detects and stores the corners.
+    let mut corners = None;
+    let first = ex.extract_cached(&img, None, &mut corners);
+    assert_eq!(first, ex.extract_where(&img, None));
+    let stored = corners.clone().unwrap();
+    assert!(stored.len() > first.0.len(), "{} corners", stored.len());
+    // A later, masked pass reuses them and gets what detecting afresh gives.
+    let masked = ex.extract_cached(&img, Some(&mask), &mut corners);
+    let fresh = ex.extract_where(&img, Some(&mask));
+    assert_eq!(masked, fresh);
+    assert!(!masked.0.is_empty() && masked.0.len() < first.0.len() + 1);
+    assert!(std::sync::Arc::ptr_eq(&stored, corners.as_ref().unwrap()));
+    // An extractor with other parameters does not take them.
+    let other = OrbExtractor::new(OrbParams {
+        ini_th_fast: 30,
+        ..OrbParams::default()
+    })
+    .unwrap();
+    let mut c2 = corners.clone();
+    assert_eq!(
+        other.extract_cached(&img, Some(&mask), &mut c2),
+        other.extract_where(&img, Some(&mask))
+    );
+    assert!(!std::sync::Arc::ptr_eq(&stored, c2.as_ref().unwrap()));
+}
