@@ -557,12 +557,11 @@ fn median_sorted_desc(run: &[f32]) -> f32 {
     }
 }
 
-/// Minimum over a square window of radius `r`, ignoring `NaN` (NaN where all are NaN).
-/// Pixels outside the image are ignored. The values are positive or `NaN`, so the minimum
-/// does not depend on the order in which the window is visited: the window is folded in as
-/// shifted copies of whole rows and columns, which the compiler vectorises.
-fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    let fmin = |a: f32, b: f32| if b < a || a.is_nan() { b } else { a };
+/// `op` folded over the `(2r+1)²` square window of every pixel (pixels outside the image are
+/// left out), separably, as shifted copies of whole rows and then whole columns, which the
+/// compiler vectorises. `op` must be commutative and associative on the values given, so
+/// that the visiting order does not matter.
+fn window_fold<T: Copy>(v: &[T], w: usize, h: usize, r: usize, op: impl Fn(T, T) -> T) -> Vec<T> {
     if r == 0 || w == 0 || h == 0 {
         return v.to_vec();
     }
@@ -570,10 +569,10 @@ fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
     for (row_in, row_out) in v.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
         for d in 1..=r.min(w - 1) {
             for (o, &i) in row_out[d..].iter_mut().zip(&row_in[..w - d]) {
-                *o = fmin(*o, i);
+                *o = op(*o, i);
             }
             for (o, &i) in row_out[..w - d].iter_mut().zip(&row_in[d..]) {
-                *o = fmin(*o, i);
+                *o = op(*o, i);
             }
         }
     }
@@ -581,43 +580,26 @@ fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
     for d in 1..=r.min(h - 1) {
         let s = d * w;
         for (o, &i) in out[s..].iter_mut().zip(&tmp[..w * h - s]) {
-            *o = fmin(*o, i);
+            *o = op(*o, i);
         }
         for (o, &i) in out[..w * h - s].iter_mut().zip(&tmp[s..]) {
-            *o = fmin(*o, i);
+            *o = op(*o, i);
         }
     }
     out
 }
 
+/// Minimum over a square window of radius `r`, ignoring `NaN` (NaN where all are NaN).
+/// Pixels outside the image are ignored. The values are positive or `NaN`, so the minimum
+/// does not depend on the order in which the window is visited.
+fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    window_fold(v, w, h, r, |a, b| if b < a || a.is_nan() { b } else { a })
+}
+
 /// Binary dilation by a `(2r+1)²` square on a working-resolution mask (pixels outside the
-/// image are ignored), separable and over shifted copies of whole rows and columns.
+/// image are ignored).
 fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    if r == 0 || w == 0 || h == 0 {
-        return mask.to_vec();
-    }
-    let mut tmp = mask.to_vec();
-    for (row_in, row_out) in mask.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
-        for d in 1..=r.min(w - 1) {
-            for (o, &i) in row_out[d..].iter_mut().zip(&row_in[..w - d]) {
-                *o |= i;
-            }
-            for (o, &i) in row_out[..w - d].iter_mut().zip(&row_in[d..]) {
-                *o |= i;
-            }
-        }
-    }
-    let mut out = tmp.clone();
-    for d in 1..=r.min(h - 1) {
-        let s = d * w;
-        for (o, &i) in out[s..].iter_mut().zip(&tmp[..w * h - s]) {
-            *o |= i;
-        }
-        for (o, &i) in out[..w * h - s].iter_mut().zip(&tmp[s..]) {
-            *o |= i;
-        }
-    }
-    out
+    window_fold(mask, w, h, r, |a, b| a | b)
 }
 
 fn erode(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
