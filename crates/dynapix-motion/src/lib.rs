@@ -117,6 +117,46 @@ pub enum MotionError {
     RigidFit(#[from] rigidity::RigidFitError),
 }
 
+/// A rigid motion unpacked into plain numbers for the branch-free kernels (static-depth
+/// splat, RANSAC count, dense residual): [`RigidRows::apply`] computes `R·p + t` with the
+/// same operations in the same order as nalgebra's matrix product (column by column, then
+/// `+ t`), so the kernels give the bits of the code they replaced.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RigidRows {
+    r: [[f64; 3]; 3],
+    t: [f64; 3],
+}
+
+impl RigidRows {
+    /// From a rotation matrix and a translation.
+    pub(crate) fn new(r: &nalgebra::Matrix3<f64>, t: &nalgebra::Vector3<f64>) -> Self {
+        Self {
+            r: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])),
+            t: [t.x, t.y, t.z],
+        }
+    }
+
+    /// From an `Se3`.
+    pub(crate) fn from_se3(m: &dynapix_geometry::Se3) -> Self {
+        Self::new(
+            m.rotation.to_rotation_matrix().matrix(),
+            &m.translation.vector,
+        )
+    }
+
+    /// `R·(x, y, z) + t`.
+    #[inline(always)]
+    pub(crate) fn apply(&self, x: f64, y: f64, z: f64) -> (f64, f64, f64) {
+        let [[r00, r01, r02], [r10, r11, r12], [r20, r21, r22]] = self.r;
+        let [t0, t1, t2] = self.t;
+        (
+            r00 * x + r01 * y + r02 * z + t0,
+            r10 * x + r11 * y + r12 * z + t1,
+            r20 * x + r21 * y + r22 * z + t2,
+        )
+    }
+}
+
 /// Checks that an image has the expected size.
 pub(crate) fn check_size(
     what: &str,

@@ -572,12 +572,7 @@ fn count_inliers_avx2(motion: &Se3, c: &Columns, model: &Model, chi2: f64) -> us
 
 #[inline(always)]
 fn count_inliers_body(motion: &Se3, c: &Columns, model: &Model, chi2: f64) -> usize {
-    let r: Matrix3<f64> = *motion.rotation.to_rotation_matrix().matrix();
-    let t = motion.translation.vector;
-    let (r00, r01, r02) = (r[(0, 0)], r[(0, 1)], r[(0, 2)]);
-    let (r10, r11, r12) = (r[(1, 0)], r[(1, 1)], r[(1, 2)]);
-    let (r20, r21, r22) = (r[(2, 0)], r[(2, 1)], r[(2, 2)]);
-    let (t0, t1, t2) = (t.x, t.y, t.z);
+    let rt = crate::RigidRows::from_se3(motion);
     let (fxs, fys, min_pz) = (model.fx_over_sigma, model.fy_over_sigma, model.min_pz);
     let n = c.ax.len();
     let (ay, az, bn0, bn1, bz, sz) = (
@@ -590,11 +585,7 @@ fn count_inliers_body(motion: &Se3, c: &Columns, model: &Model, chi2: f64) -> us
     );
     let mut count = 0usize;
     for k in 0..n {
-        let (x, y, z) = (c.ax[k], ay[k], az[k]);
-        // `R·a + t`, summed column by column as nalgebra's matrix product does.
-        let px = r00 * x + r01 * y + r02 * z + t0;
-        let py = r10 * x + r11 * y + r12 * z + t1;
-        let pz = r20 * x + r21 * y + r22 * z + t2;
+        let (px, py, pz) = rt.apply(c.ax[k], ay[k], az[k]);
         let ex = (px / pz - bn0[k]) * fxs;
         let ey = (py / pz - bn1[k]) * fys;
         let ez = (pz - bz[k]) / sz[k];
@@ -860,10 +851,7 @@ fn residual_row_body(
     let rays_i = pair.rays.row(y as u32);
     let rays = pair.rays.all();
     let min_depth = pair.min_depth;
-    let (r00, r01, r02) = (r[(0, 0)], r[(0, 1)], r[(0, 2)]);
-    let (r10, r11, r12) = (r[(1, 0)], r[(1, 1)], r[(1, 2)]);
-    let (r20, r21, r22) = (r[(2, 0)], r[(2, 1)], r[(2, 2)]);
-    let (t0, t1, t2) = (t.x, t.y, t.z);
+    let rt = crate::RigidRows::new(r, t);
     let (fxs, fys) = (model.fx_over_sigma, model.fy_over_sigma);
     let (sz_a, sz_b, min_pz) = (model.sz_a, model.sz_b, model.min_pz);
     let mut ok = [false; RESIDUAL_BLOCK];
@@ -902,14 +890,10 @@ fn residual_row_body(
             let z = zi[x] as f64;
             let ri = rays_i[x];
             let valid = ok[j] & !(z2[j].is_nan() || z2[j] <= min_depth) & rj[j][0].is_finite();
-            let (ax, ay, az) = (ri[0] * z, ri[1] * z, z);
             let bn0 = rj[j][0] + du[j] / fx;
             let bn1 = rj[j][1] + dv[j] / fy;
             let bz = z2[j];
-            // `R·a + t`, summed column by column as nalgebra's matrix product does.
-            let px = r00 * ax + r01 * ay + r02 * az + t0;
-            let py = r10 * ax + r11 * ay + r12 * az + t1;
-            let pz = r20 * ax + r21 * ay + r22 * az + t2;
+            let (px, py, pz) = rt.apply(ri[0] * z, ri[1] * z, z);
             // `Model::r2`: a NaN depth counts as behind the camera.
             let ex = (px / pz - bn0) * fxs;
             let ey = (py / pz - bn1) * fys;

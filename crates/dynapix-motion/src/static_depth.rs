@@ -253,12 +253,7 @@ fn splat_nearest_blocks(
     let d = view.depth.depth.as_raw();
     let (w, h) = view.depth.depth.dimensions();
     let (wf, hf) = (w as f64, h as f64);
-    let r = *view.t_cs.rotation.to_rotation_matrix().matrix();
-    let t = view.t_cs.translation.vector;
-    let (r00, r01, r02) = (r[(0, 0)], r[(0, 1)], r[(0, 2)]);
-    let (r10, r11, r12) = (r[(1, 0)], r[(1, 1)], r[(1, 2)]);
-    let (r20, r21, r22) = (r[(2, 0)], r[(2, 1)], r[(2, 2)]);
-    let (t0, t1, t2) = (t.x, t.y, t.z);
+    let motion = crate::RigidRows::from_se3(&view.t_cs);
     let (fx, fy, cx, cy) = (cam.fx, cam.fy, cam.cx, cam.cy);
     let (dist, max_r2) = match table {
         Some(t) => (t.camera().dist, t.max_r2()),
@@ -275,11 +270,7 @@ fn splat_nearest_blocks(
             let ray = rc[k];
             let ok = !(z.is_nan() || z <= 0.0) & ray[0].is_finite();
             let z = z as f64;
-            // `R·(x, y, z) + t`, summed column by column as nalgebra's matrix product does.
-            let (x, y) = (ray[0] * z, ray[1] * z);
-            let px = r00 * x + r01 * y + r02 * z + t0;
-            let py = r10 * x + r11 * y + r12 * z + t1;
-            let pz = r20 * x + r21 * y + r22 * z + t2;
+            let (px, py, pz) = motion.apply(ray[0] * z, ray[1] * z, z);
             let ok = ok & (pz > 0.0);
             let (ux, uy, ok) = if distorted {
                 let (x, y) = (px / pz, py / pz);
