@@ -271,6 +271,27 @@ impl OrbExtractor {
         (kps, descs)
     }
 
+    /// The FAST corners of `img` alone, for a later [`OrbExtractor::extract_cached`] of the
+    /// same image (e.g. detected while the frame's weights are still being computed: the
+    /// corners do not depend on them).
+    pub fn detect_corners(&self, img: &GrayImage) -> std::sync::Arc<FastCorners> {
+        let base = Plane {
+            w: img.width() as usize,
+            h: img.height() as usize,
+            data: img.as_raw().clone(),
+        };
+        let levels = self
+            .pyramid(base)
+            .par_iter()
+            .map(|plane| self.detect_level(plane))
+            .collect();
+        std::sync::Arc::new(FastCorners {
+            params: self.params.clone(),
+            size: img.dimensions(),
+            levels,
+        })
+    }
+
     /// Builds the pyramid; each level is a bilinear resize of the previous one to
     /// round(size / scale). Levels whose detection area would be empty are dropped.
     fn pyramid(&self, base: Plane) -> Vec<Plane> {
@@ -646,6 +667,9 @@ impl crate::system::FeatureExtractor for OrbExtractor {
         corners: &mut Option<std::sync::Arc<FastCorners>>,
     ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         OrbExtractor::extract_cached(self, image, keep, corners)
+    }
+    fn fast_corners(&self, image: &GrayImage) -> Option<std::sync::Arc<FastCorners>> {
+        Some(self.detect_corners(image))
     }
     fn pyramid(&self) -> crate::frame::ScalePyramid {
         crate::frame::ScalePyramid::new(self.nlevels(), self.scale_factor())

@@ -47,6 +47,13 @@ pub trait FeatureExtractor {
         let _ = corners;
         self.extract_where(image, keep)
     }
+    /// The FAST corners of `image` on their own, for a later
+    /// [`FeatureExtractor::extract_where_cached`] of the same image, where the extractor has
+    /// such a cache ([`crate::orb::OrbExtractor::detect_corners`]). The default has none.
+    fn fast_corners(&self, image: &GrayImage) -> Option<std::sync::Arc<crate::orb::FastCorners>> {
+        let _ = image;
+        None
+    }
     /// The pyramid the keypoint octaves refer to.
     fn pyramid(&self) -> ScalePyramid;
 }
@@ -112,6 +119,18 @@ impl<E: FeatureExtractor> FeatureStage<E> {
             descriptors,
             seconds: t0.elapsed().as_secs_f64(),
         }
+    }
+
+    /// The FAST corners of `gray` for a later [`FeatureStage::extract_cached`] of the same
+    /// image, detected on their own: they depend on the image only, not on the weights, so
+    /// they can be found while the weights are computed. `None` when the extractor keeps no
+    /// corners.
+    pub fn fast_corners(
+        &self,
+        gray: &GrayImage,
+    ) -> Option<std::sync::Arc<crate::orb::FastCorners>> {
+        let _stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
+        self.extractor.fast_corners(gray)
     }
 }
 
@@ -305,6 +324,24 @@ pub struct System<E> {
     final_pose_refinement: bool,
     /// Pose-only parameters of the final refinement (tracking's, with the map's weight mode).
     refine_params: dynapix_optim::PoseOnlyParams,
+    /// A keyframe made by [`System::track_features`] whose local mapping and loop closing
+    /// have not run yet, with the index of its frame.
+    pending: Option<(u64, KeyFrameId)>,
+}
+
+/// What [`System::map_pending`] did: the local mapping and loop closing of one keyframe.
+#[derive(Clone, Debug)]
+pub struct MappingOutcome {
+    /// Index of the frame the keyframe was made from.
+    pub index: u64,
+    /// Local-mapping counters.
+    pub mapping: MappingStats,
+    /// The loop closed at this keyframe, if any.
+    pub loop_closure: Option<LoopEvent>,
+    /// Wall-clock seconds of the local mapping (measurement only).
+    pub mapping_seconds: f64,
+    /// Wall-clock seconds of the loop closing (measurement only).
+    pub loop_closing_seconds: f64,
 }
 
 impl<E: FeatureExtractor> System<E> {
@@ -329,6 +366,7 @@ impl<E: FeatureExtractor> System<E> {
             final_global_ba: params.final_global_ba,
             final_pose_refinement: params.final_pose_refinement,
             refine_params: crate::dynapix::pose_params(&params.tracking.pose, &params.map.dynapix),
+            pending: None,
         }
     }
 
@@ -340,6 +378,7 @@ impl<E: FeatureExtractor> System<E> {
     /// With [`SystemParams::final_pose_refinement`], afterwards every tracked non-keyframe
     /// frame is re-optimised against the final map ([`System::refine_frame_poses`]).
     pub fn finish(&mut self) -> Option<crate::loop_closing::correct::global_ba::Output> {
+        self.map_pending();
         let ba = self.final_global_ba();
         if self.final_pose_refinement && !self.localization {
             let _stage =
@@ -387,6 +426,7 @@ impl<E: FeatureExtractor> System<E> {
     /// map and tracking state; meant to be called before the first frame. Poses of frames
     /// already processed are frozen.
     pub fn enter_localization(&mut self, map: Map) {
+        self.map_pending();
         self.freeze_records();
         self.map = map;
         self.tracker = Tracker::new(self.cam.clone(), self.tracker.params.clone());
@@ -411,7 +451,8 @@ impl<E: FeatureExtractor> System<E> {
         self
     }
 
-    /// The map.
+    /// The map. After [`System::track_features`] it lacks the local mapping and loop closing
+    /// of the newest keyframe until [`System::map_pending`] (or the next frame) runs them.
     pub fn map(&self) -> &Map {
         &self.map
     }
@@ -491,8 +532,76 @@ impl<E: FeatureExtractor> System<E> {
         self.track_and_map(input, features)
     }
 
+    /// [`System::process_features`] up to the keyframe decision: when the frame makes a
+    /// keyframe, its local mapping and loop closing are left pending, for the caller to run
+    /// with [`System::map_pending`] while it does other work (e.g. the next frame's motion
+    /// map on another thread). They run at the latest when the next frame is tracked, or at
+    /// [`System::finish`], [`System::refine_frame_poses`] and
+    /// [`System::enter_localization`]: each keyframe is mapped before the next frame is
+    /// tracked, so the results are those of [`System::process_features`], whenever the caller
+    /// runs the mapping. The returned [`FrameResult::mapping`] and
+    /// [`FrameResult::loop_closure`] are `None` while the mapping is pending.
+    pub fn track_features(
+        &mut self,
+        input: FrameInput<'_>,
+        features: Features,
+    ) -> Result<FrameResult, ProcessError> {
+        self.check_sizes(&input)?;
+        self.map_pending();
+        self.track(input, features)
+    }
+
+    /// True while a keyframe made by [`System::track_features`] waits for its local mapping.
+    pub fn has_pending_mapping(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// Runs the local mapping and loop closing of the keyframe left pending by
+    /// [`System::track_features`], if any, and reports them.
+    pub fn map_pending(&mut self) -> Option<MappingOutcome> {
+        let (index, kf) = self.pending.take()?;
+        let t0 = Instant::now();
+        let mapping = {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "local mapping").entered();
+            self.mapper.process(&mut self.map, kf, self.vocab.as_ref())
+        };
+        let t1 = Instant::now();
+        let mut loop_closure = None;
+        if self.map.keyframe(kf).is_some() {
+            let _stage = tracing::info_span!(target: "dynapix::stage", "loop closing").entered();
+            loop_closure = self.closer.step(&mut self.map, kf, self.vocab.as_ref());
+        }
+        Some(MappingOutcome {
+            index,
+            mapping,
+            loop_closure,
+            mapping_seconds: (t1 - t0).as_secs_f64(),
+            loop_closing_seconds: t1.elapsed().as_secs_f64(),
+        })
+    }
+
     /// Tracking, local mapping and loop closing of a checked frame with its features.
     fn track_and_map(
+        &mut self,
+        input: FrameInput<'_>,
+        features: Features,
+    ) -> Result<FrameResult, ProcessError> {
+        self.map_pending();
+        let mut result = self.track(input, features)?;
+        if let Some(done) = self.map_pending() {
+            result.times.mapping = done.mapping_seconds;
+            result.times.loop_closing = done.loop_closing_seconds;
+            result.mapping = Some(done.mapping);
+            result.loop_closure = done.loop_closure;
+        }
+        Ok(result)
+    }
+
+    /// Tracking of a checked frame with its features; a new keyframe is left pending (see
+    /// [`System::track_features`]), except when tracking asks for a map reset: then its
+    /// mapping and loop closing run first, and the reset after them. The frame's record is
+    /// kept before the mapping, which never reads the records.
+    fn track(
         &mut self,
         input: FrameInput<'_>,
         features: Features,
@@ -547,22 +656,23 @@ impl<E: FeatureExtractor> System<E> {
                 Vec::new()
             };
         drop(stage);
-        let mut mapping = None;
-        if let Some(kf) = out.new_keyframe {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "local mapping").entered();
-            mapping = Some(self.mapper.process(&mut self.map, kf, self.vocab.as_ref()));
-        }
-        let t3 = Instant::now();
-        let mut loop_closure = None;
-        if let Some(kf) = out.new_keyframe
-            && self.map.keyframe(kf).is_some()
-        {
-            let _stage = tracing::info_span!(target: "dynapix::stage", "loop closing").entered();
-            loop_closure = self.closer.step(&mut self.map, kf, self.vocab.as_ref());
-        }
-        let t4 = Instant::now();
+        self.pending = out.new_keyframe.map(|kf| (index, kf));
+        let mut times = StepTimes {
+            extract: extract_seconds,
+            track: (t2 - t1).as_secs_f64(),
+            mapping: 0.0,
+            loop_closing: 0.0,
+        };
+        let (mut mapping, mut loop_closure) = (None, None);
         let mut reset = false;
         if out.reset_requested {
+            // The order of `process`: mapping and loop closing, the reset, then the record.
+            if let Some(done) = self.map_pending() {
+                times.mapping = done.mapping_seconds;
+                times.loop_closing = done.loop_closing_seconds;
+                mapping = Some(done.mapping);
+                loop_closure = done.loop_closure;
+            }
             self.freeze_records();
             self.map.clear();
             self.tracker.reset();
@@ -587,12 +697,7 @@ impl<E: FeatureExtractor> System<E> {
             inliers: out.inliers,
             reset,
             relocalised: out.relocalised,
-            times: StepTimes {
-                extract: extract_seconds,
-                track: (t2 - t1).as_secs_f64(),
-                mapping: (t3 - t2).as_secs_f64(),
-                loop_closing: (t4 - t3).as_secs_f64(),
-            },
+            times,
             mapping,
             loop_closure,
         })
@@ -617,6 +722,7 @@ impl<E: FeatureExtractor> System<E> {
     /// [`MIN_REFINE_MATCHES`] surviving matches, or fewer inliers after the optimisation,
     /// keeps its pose. Returns the number of frames whose pose was replaced.
     pub fn refine_frame_poses(&mut self) -> usize {
+        self.map_pending();
         let camera = crate::tracking::stereo_camera(&self.cam);
         let mut n = 0;
         for r in self.records.iter_mut() {
@@ -731,6 +837,110 @@ mod tests {
             .expect("frame");
         }
         sys
+    }
+
+    /// How [`deferred_mapping_gives_the_results_of_process`] feeds a system.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum Feed {
+        /// `process` on every frame.
+        Process,
+        /// `track_features`, then `map_pending` at once.
+        MapAtOnce,
+        /// `track_features` only: each keyframe is mapped when the next frame is tracked.
+        Deferred,
+    }
+
+    /// Per-frame (pose, keyframe, mapping counters), the trajectory and the map's size of a
+    /// run over 40 frames of the synthetic `walking_xyz` preset at 320×240 fed as `feed`.
+    #[allow(clippy::type_complexity)]
+    fn fed_run(
+        feed: Feed,
+    ) -> (
+        Vec<(Option<Se3>, bool, Option<MappingStats>)>,
+        Vec<TrajectoryEntry>,
+        Vec<(f64, Se3)>,
+        (usize, usize),
+        usize,
+    ) {
+        let n = 40;
+        let params =
+            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, n, 0, 320, 240);
+        let seq = dynapix_synth::Sequence::new(params).expect("sequence");
+        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
+        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        let mut sys = System::new(OrbExtractor::default(), cam, SystemParams::default());
+        let mut stage = sys.feature_stage();
+        let mut frames = Vec::new();
+        let mut pending_seen = 0;
+        for i in 0..n {
+            let (f, _) = seq.frame(i, None);
+            let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
+            let depth = f.depth_metres();
+            let input = FrameInput {
+                timestamp: seq.time(i),
+                gray: &gray,
+                depth: &depth,
+                weights: None,
+                masks: None,
+            };
+            let mut r = match feed {
+                Feed::Process => sys.process(input).expect("frame"),
+                Feed::MapAtOnce | Feed::Deferred => {
+                    let feats = stage.extract(&gray, None);
+                    sys.track_features(input, feats).expect("frame")
+                }
+            };
+            if sys.has_pending_mapping() {
+                pending_seen += 1;
+                assert!(r.new_keyframe && r.mapping.is_none());
+            }
+            if feed == Feed::MapAtOnce
+                && let Some(done) = sys.map_pending()
+            {
+                assert_eq!(done.index, r.index);
+                r.mapping = Some(done.mapping);
+            }
+            frames.push((r.pose_cw, r.new_keyframe, r.mapping));
+        }
+        if feed == Feed::Deferred {
+            // The last keyframe waits until something needs the map.
+            assert!(sys.has_pending_mapping() == frames.last().is_some_and(|f| f.1));
+            sys.finish();
+            assert!(!sys.has_pending_mapping());
+        }
+        let size = (sys.map().num_keyframes(), sys.map().num_points());
+        (
+            frames,
+            sys.trajectory(),
+            sys.keyframe_trajectory(),
+            size,
+            pending_seen,
+        )
+    }
+
+    #[test]
+    fn deferred_mapping_gives_the_results_of_process() {
+        let (frames, traj, kfs, size, pending) = fed_run(Feed::Process);
+        assert_eq!(pending, 0, "process maps every keyframe at once");
+        let keyframes = frames.iter().filter(|f| f.1).count();
+        assert!(keyframes >= 5, "{keyframes} keyframes");
+        assert!(frames.iter().all(|f| f.0.is_some()), "every frame tracked");
+        let (at_once, traj_a, kfs_a, size_a, pending_a) = fed_run(Feed::MapAtOnce);
+        assert_eq!(pending_a, keyframes, "every keyframe waits for its mapping");
+        assert_eq!(
+            at_once, frames,
+            "same poses, keyframes and mapping counters"
+        );
+        assert_eq!((traj_a, kfs_a, size_a), (traj.clone(), kfs.clone(), size));
+        // Mapping each keyframe only when the next frame comes: the poses at tracking time
+        // are the same; the mapping counters are not reported with the frame.
+        let (deferred, traj_d, kfs_d, size_d, _) = fed_run(Feed::Deferred);
+        let strip = |v: &[(Option<Se3>, bool, Option<MappingStats>)]| {
+            v.iter().map(|f| (f.0, f.1)).collect::<Vec<_>>()
+        };
+        assert_eq!(strip(&deferred), strip(&frames));
+        assert!(deferred.iter().all(|f| f.2.is_none()));
+        assert_eq!((traj_d, kfs_d, size_d), (traj, kfs, size));
     }
 
     fn positions(sys: &System<OrbExtractor>) -> Vec<Option<nalgebra::Vector3<f64>>> {

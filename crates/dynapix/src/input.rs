@@ -389,6 +389,34 @@ impl Input {
         self.sequence.timestamps()
     }
 
+    /// Streams frames `0..len()` in order as a camera driver would: `load(i)` runs on a reader
+    /// thread up to `ahead` frames before `consume` takes frame `i`, so decoding overlaps the
+    /// processing of the frames before. The first error of `consume` stops the stream and is
+    /// returned (the reader stops at the next frame).
+    pub fn stream<T: Send, E>(
+        &self,
+        ahead: usize,
+        load: impl Fn(usize) -> T + Sync,
+        mut consume: impl FnMut(usize, T) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
+        let n = self.len();
+        std::thread::scope(|scope| {
+            let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, T)>(ahead.max(1));
+            let load = &load;
+            scope.spawn(move || {
+                for i in 0..n {
+                    if tx.send((i, load(i))).is_err() {
+                        break;
+                    }
+                }
+            });
+            for (i, item) in rx {
+                consume(i, item)?;
+            }
+            Ok(())
+        })
+    }
+
     /// The colour image and depth (metres) of frame `i`. A file that cannot be used
     /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
     /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.

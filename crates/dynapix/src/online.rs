@@ -42,7 +42,7 @@ use dynapix_motion::{
     RigidityParams, Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
 };
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::system::{FrameInput, System, SystemParams};
+use dynapix_slam::system::{FeatureStage, FrameInput, MappingOutcome, System, SystemParams};
 use image::{GrayImage, RgbImage};
 
 use crate::config::{Config, Cues};
@@ -93,12 +93,29 @@ pub struct FrameResult {
     /// Mean motion probability of the frame's pixels (0 for ORB-SLAM2).
     pub mean_probability: f32,
     /// Milliseconds spent on the motion map (background, flows, splats), `background_ms`
-    /// included.
+    /// included; the previous keyframe's mapping and this frame's FAST corners run beside it.
     pub motion_ms: f64,
     /// Milliseconds spent reconstructing the frame's background.
     pub background_ms: f64,
-    /// Milliseconds spent in SLAM (extraction, tracking, mapping, loop closing).
+    /// Milliseconds from the frame's motion map to its pose: the rest of the feature
+    /// extraction and tracking. A new keyframe is mapped during the next push.
     pub slam_ms: f64,
+    /// Milliseconds of the local mapping and loop closing of the previous frame's keyframe,
+    /// which ran during this push beside the motion map (0 when it made none).
+    pub mapping_ms: f64,
+}
+
+/// The motion map of one frame and what the window keeps of it.
+struct FrameMotion {
+    /// Predicted camera-to-world pose the maps were splatted with.
+    t_wc: Se3,
+    /// Static weights for tracking (`None` for ORB-SLAM2).
+    weights: Option<StaticWeights>,
+    background: Option<Arc<StaticBackground>>,
+    gray: Option<Arc<GrayImage>>,
+    working: Option<Arc<WorkingDepth>>,
+    mean_probability: f32,
+    background_ms: f64,
 }
 
 /// A processed frame kept in the window.
@@ -118,10 +135,26 @@ struct Past {
 }
 
 /// Online DynaPix: push frames, get poses.
+///
+/// Each push runs three jobs side by side: the local mapping and loop closing of the previous
+/// frame's keyframe, the new frame's motion map, and its FAST corners. The motion map reads
+/// nothing of the SLAM map (only the poses tracking gave the past frames) and the corners do
+/// not depend on the weights, while the system maps a keyframe before it tracks the next
+/// frame in any case: the results are those of mapping each keyframe at once
+/// ([`OnlineDynaPix::map_pending`] after every push gives the same poses).
 pub struct OnlineDynaPix {
+    system: System<OrbExtractor>,
+    /// A copy of the system's feature extraction, run here to find the FAST corners beside
+    /// the motion map.
+    features: FeatureStage<OrbExtractor>,
+    core: Core,
+}
+
+/// The online schedule apart from the SLAM system: everything the motion map of a frame
+/// reads, so it can be computed while the system maps the previous keyframe.
+struct Core {
     config: Config,
     cam: PinholeCamera,
-    system: System<OrbExtractor>,
     flow: DisFlow,
     rigidity_flow: DisFlow,
     /// The cues of P (`None` for ORB-SLAM2).
@@ -173,37 +206,51 @@ impl OnlineDynaPix {
             system = system.with_vocabulary(v);
         }
         Ok(Self {
-            config: config.clone(),
-            cam: camera.pinhole(),
+            features: system.feature_stage(),
             system,
-            flow: DisFlow::with_preset(config.motion.flow.preset()),
-            rigidity_flow: online_rigidity_flow(config, camera.pinhole().width),
-            cues,
-            params,
-            recon: config.motion.reconstruct.clone(),
-            pending: VecDeque::new(),
-            window: VecDeque::new(),
-            keyframes: VecDeque::new(),
-            last_tracked: VecDeque::new(),
-            next_index: 0,
+            core: Core {
+                config: config.clone(),
+                cam: camera.pinhole(),
+                flow: DisFlow::with_preset(config.motion.flow.preset()),
+                rigidity_flow: online_rigidity_flow(config, camera.pinhole().width),
+                cues,
+                params,
+                recon: config.motion.reconstruct.clone(),
+                pending: VecDeque::new(),
+                window: VecDeque::new(),
+                keyframes: VecDeque::new(),
+                last_tracked: VecDeque::new(),
+                next_index: 0,
+            },
         })
     }
 
-    /// The SLAM system (map, keyframes, full trajectory so far).
+    /// The SLAM system (map, keyframes, full trajectory so far). Between pushes the newest
+    /// keyframe may still wait for its local mapping and loop closing (they run during the
+    /// next push); [`OnlineDynaPix::map_pending`] runs them now, [`OnlineDynaPix::finish`]
+    /// runs them at the end.
     pub fn system(&self) -> &System<OrbExtractor> {
         &self.system
     }
 
+    /// Runs the local mapping and loop closing of the newest keyframe now, if they are still
+    /// pending (see [`OnlineDynaPix::system`]); the results of later frames are the same
+    /// either way.
+    pub fn map_pending(&mut self) -> Option<MappingOutcome> {
+        self.system.map_pending()
+    }
+
     /// The latency in frames: a frame's result comes when this many later frames arrived.
     pub fn lookahead(&self) -> usize {
-        self.config.online.lookahead
+        self.core.lookahead()
     }
 
     /// Pushes the next frame. Returns the result of the frame `lookahead` frames back (the
     /// newest frame itself without lookahead), or `None` while the first frames fill the
     /// lookahead.
     pub fn push(&mut self, frame: RgbdFrame) -> Result<Option<FrameResult>> {
-        let size = (self.cam.width, self.cam.height);
+        let core = &mut self.core;
+        let size = (core.cam.width, core.cam.height);
         for (what, got) in [
             ("colour image", frame.rgb.dimensions()),
             ("depth", frame.depth.dimensions()),
@@ -211,34 +258,110 @@ impl OnlineDynaPix {
             if got != size {
                 return Err(Error::Input(format!(
                     "frame {} (t = {:.6}): {what} is {}×{}, the camera is {}×{}",
-                    self.next_index, frame.t, got.0, got.1, size.0, size.1
+                    core.next_index, frame.t, got.0, got.1, size.0, size.1
                 )));
             }
         }
-        if let Some((_, last)) = self.pending.back()
+        if let Some((_, last)) = core.pending.back()
             && frame.t <= last.t
         {
             return Err(Error::Input(format!(
                 "frame {} (t = {:.6}) is not after the previous frame (t = {:.6})",
-                self.next_index, frame.t, last.t
+                core.next_index, frame.t, last.t
             )));
         }
-        self.pending.push_back((self.next_index, frame));
-        self.next_index += 1;
-        if self.pending.len() <= self.lookahead() {
+        core.pending.push_back((core.next_index, frame));
+        core.next_index += 1;
+        if core.pending.len() <= core.lookahead() {
             return Ok(None);
         }
         self.process_oldest().map(Some)
     }
 
-    /// Processes the frames still waiting for their lookahead (end of the stream) and returns
-    /// their results in order.
+    /// Processes the frames still waiting for their lookahead (end of the stream) and the
+    /// local mapping of the last keyframe, and returns the frames' results in order.
     pub fn finish(&mut self) -> Result<Vec<FrameResult>> {
-        let mut out = Vec::with_capacity(self.pending.len());
-        while !self.pending.is_empty() {
+        let mut out = Vec::with_capacity(self.core.pending.len());
+        while !self.core.pending.is_empty() {
             out.push(self.process_oldest()?);
         }
+        self.system.map_pending();
         Ok(out)
+    }
+
+    fn process_oldest(&mut self) -> Result<FrameResult> {
+        let Some((index, frame)) = self.core.pending.pop_front() else {
+            return Err(Error::Input("no frame to process".into()));
+        };
+        let latency_frames = self.core.pending.len();
+        let t0 = Instant::now();
+        let images = Arc::new(RgbdImages {
+            rgb: frame.rgb,
+            depth: frame.depth,
+        });
+        let orb_gray = rgb_to_gray_orbslam(&images.rgb);
+        // The three jobs of a push side by side (see the type's documentation).
+        let (system, features, core) = (&mut self.system, &self.features, &self.core);
+        let ((mapped, mut corners), motion) = rayon::join(
+            || rayon::join(|| system.map_pending(), || features.fast_corners(&orb_gray)),
+            || core.weights(index, &images),
+        );
+        let motion = motion?;
+        let motion_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let t1 = Instant::now();
+        let feats = self
+            .features
+            .extract_cached(&orb_gray, motion.weights.as_ref(), &mut corners);
+        let res = self.system.track_features(
+            FrameInput {
+                timestamp: frame.t,
+                gray: &orb_gray,
+                depth: &images.depth,
+                weights: motion.weights.as_ref(),
+                masks: frame.mask.as_ref(),
+            },
+            feats,
+        )?;
+        let slam_ms = t1.elapsed().as_secs_f64() * 1e3;
+        let status = frame_status(res.state);
+        let tracked_cw = res.pose_cw.filter(|_| status == FrameStatus::Tracked);
+        let core = &mut self.core;
+        if let Some(cw) = tracked_cw {
+            core.last_tracked.push_back((index, cw));
+            while core.last_tracked.len() > 2 {
+                core.last_tracked.pop_front();
+            }
+        }
+        let pose_wc = tracked_cw.map(|cw| cw.inverse());
+        core.remember(Past {
+            index,
+            images,
+            gray: motion.gray,
+            working: motion.working,
+            background: motion.background,
+            pose_wc: pose_wc.unwrap_or(motion.t_wc),
+            keyframe: res.new_keyframe && pose_wc.is_some(),
+        });
+        Ok(FrameResult {
+            index,
+            t: frame.t,
+            status,
+            pose_wc,
+            keyframe: res.new_keyframe,
+            latency_frames,
+            mean_probability: motion.mean_probability,
+            motion_ms,
+            background_ms: motion.background_ms,
+            slam_ms,
+            mapping_ms: mapped.map_or(0.0, |m| (m.mapping_seconds + m.loop_closing_seconds) * 1e3),
+        })
+    }
+}
+
+impl Core {
+    /// The latency in frames.
+    fn lookahead(&self) -> usize {
+        self.config.online.lookahead
     }
 
     /// `T_cw` predicted for frame `index` by the constant-velocity model.
@@ -311,17 +434,11 @@ impl OnlineDynaPix {
         })
     }
 
-    fn process_oldest(&mut self) -> Result<FrameResult> {
-        let Some((index, frame)) = self.pending.pop_front() else {
-            return Err(Error::Input("no frame to process".into()));
-        };
-        let latency_frames = self.pending.len();
+    /// The motion map of frame `index` (images `images`) as static weights, with what the
+    /// window keeps of it.
+    fn weights(&self, index: usize, images: &RgbdImages) -> Result<FrameMotion> {
         let t0 = Instant::now();
         let t_wc = self.predict_cw(index).inverse();
-        let images = Arc::new(RgbdImages {
-            rgb: frame.rgb,
-            depth: frame.depth,
-        });
         let mut background_ms = 0.0;
         let cues = self.cues.unwrap_or(Cues {
             paper: false,
@@ -341,9 +458,9 @@ impl OnlineDynaPix {
                 let mut p = FloatImage::new(self.cam.width, self.cam.height);
                 let mut background = None;
                 if let Some(params) = &self.params {
-                    let bg = Arc::new(self.background(index, &images, &t_wc)?);
+                    let bg = Arc::new(self.background(index, images, &t_wc)?);
                     background_ms = t0.elapsed().as_secs_f64() * 1e3;
-                    let paper = self.motion(index, &images, &bg, &t_wc, params)?;
+                    let paper = self.motion(index, images, &bg, &t_wc, params)?;
                     noisy_or(&mut p, paper.as_image())?;
                     background = Some(bg);
                 }
@@ -369,7 +486,6 @@ impl OnlineDynaPix {
                     noisy_or(&mut p, &g)?;
                 }
                 let p = MotionProbability::new(p);
-                let bg = background;
                 let mean = p.as_image().iter().sum::<f32>() / p.as_image().len().max(1) as f32;
                 let w = p.static_weights();
                 let w = if self.config.method.thresholds() {
@@ -377,67 +493,18 @@ impl OnlineDynaPix {
                 } else {
                     w
                 };
-                (Some(w), bg, mean)
+                (Some(w), background, mean)
             }
         };
-        let motion_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let t1 = Instant::now();
-        let res = self.track(
-            frame.t,
-            &images.rgb,
-            &images.depth,
-            weights.as_ref(),
-            frame.mask.as_ref(),
-        )?;
-        let slam_ms = t1.elapsed().as_secs_f64() * 1e3;
-        let status = frame_status(res.state);
-        let tracked_cw = res.pose_cw.filter(|_| status == FrameStatus::Tracked);
-        if let Some(cw) = tracked_cw {
-            self.last_tracked.push_back((index, cw));
-            while self.last_tracked.len() > 2 {
-                self.last_tracked.pop_front();
-            }
-        }
-        let pose_wc = tracked_cw.map(|cw| cw.inverse());
-        self.remember(Past {
-            index,
-            images,
+        Ok(FrameMotion {
+            t_wc,
+            weights,
+            background,
             gray,
             working,
-            background,
-            pose_wc: pose_wc.unwrap_or(t_wc),
-            keyframe: res.new_keyframe && pose_wc.is_some(),
-        });
-        Ok(FrameResult {
-            index,
-            t: frame.t,
-            status,
-            pose_wc,
-            keyframe: res.new_keyframe,
-            latency_frames,
             mean_probability,
-            motion_ms,
             background_ms,
-            slam_ms,
         })
-    }
-
-    fn track(
-        &mut self,
-        t: f64,
-        rgb: &RgbImage,
-        depth: &DepthImage,
-        weights: Option<&StaticWeights>,
-        mask: Option<&GrayImage>,
-    ) -> Result<dynapix_slam::system::FrameResult> {
-        let gray = rgb_to_gray_orbslam(rgb);
-        Ok(self.system.process(FrameInput {
-            timestamp: t,
-            gray: &gray,
-            depth,
-            weights,
-            masks: mask,
-        })?)
     }
 
     /// Keeps a processed frame in the window (and its keyframe images), within the bounds.

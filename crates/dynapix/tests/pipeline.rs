@@ -264,7 +264,9 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
 fn online_mode_keeps_a_real_gain() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = camera_only(tmp.path());
-    let run = |config: &Config| -> (Trajectory, usize) {
+    // `map_at_once`: run each keyframe's local mapping right after its frame instead of
+    // during the next push beside the next motion map.
+    let run_with = |config: &Config, map_at_once: bool| -> (Trajectory, usize) {
         let input = open(&seq, config);
         let mut online = OnlineDynaPix::new(&input.camera, config).unwrap();
         let mut results = Vec::new();
@@ -272,8 +274,24 @@ fn online_mode_keeps_a_real_gain() {
             let (rgb, depth) = input.load_rgbd(i).unwrap();
             let t = input.sequence.frames[i].t;
             results.extend(online.push(RgbdFrame::new(t, rgb, depth)).unwrap());
+            if map_at_once {
+                online.map_pending();
+                assert!(!online.system().has_pending_mapping());
+            }
         }
         results.extend(online.finish().unwrap());
+        assert!(!online.system().has_pending_mapping());
+        let keyframes = results.iter().filter(|r| r.keyframe).count();
+        let mapped_beside = results.iter().filter(|r| r.mapping_ms > 0.0).count();
+        if map_at_once {
+            assert_eq!(mapped_beside, 0);
+        } else {
+            // Every keyframe but the last is mapped during the next push.
+            assert!(
+                mapped_beside + 1 >= keyframes && keyframes >= 3,
+                "{mapped_beside} of {keyframes} keyframes mapped beside a motion map"
+            );
+        }
         assert!(results.windows(2).all(|w| w[0].index + 1 == w[1].index));
         let lag = results.iter().map(|r| r.latency_frames).max().unwrap_or(0);
         let traj = Trajectory::new(
@@ -284,8 +302,14 @@ fn online_mode_keeps_a_real_gain() {
         );
         (traj, lag)
     };
+    let run = |config: &Config| run_with(config, false);
     let (orb, _) = run(&Config::default().with_method(Method::Orbslam2));
     let (dpx, lag) = run(&Config::default());
+    let (at_once, _) = run_with(&Config::default(), true);
+    assert_eq!(
+        at_once.poses, dpx.poses,
+        "mapping beside the next motion map changes no pose"
+    );
     let (a_orb, a_dpx) = (ate(&seq, &orb), ate(&seq, &dpx));
     eprintln!("online ATE: orbslam2 {a_orb:.4} m, dynapix {a_dpx:.4} m");
     assert_eq!(lag, 0, "without lookahead every pose comes with its frame");

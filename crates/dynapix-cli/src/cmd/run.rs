@@ -499,54 +499,56 @@ fn online_into(
     let mut results = Vec::with_capacity(n);
     let mut skipped = Vec::new();
     let mut load_ms = 0.0;
-    for i in 0..n {
+    // Frames are decoded on a reader thread (as a camera driver delivers them), at most two
+    // ahead of the system.
+    let load = |i: usize| {
         let t0 = Instant::now();
-        let step = (|| -> anyhow::Result<Option<RgbdFrame>> {
-            let (rgb, depth) = match input.load_rgbd(i) {
-                Ok(images) => images,
-                Err(dynapix::Error::Frame(bad)) if input.skip_bad_frames => {
-                    tracing::warn!("skipped {bad}");
-                    skipped.push(bad);
-                    return Ok(None);
-                }
-                Err(e) => return Err(e.into()),
-            };
+        let images = (|| -> dynapix::Result<RgbdFrame> {
+            let (rgb, depth) = input.load_rgbd(i)?;
             let mask = if config.method.needs_masks() {
-                let name = input.sequence.rgb_name(i).context("no file name")?;
+                let name = input
+                    .sequence
+                    .rgb_name(i)
+                    .ok_or_else(|| dynapix::Error::Input(format!("frame {i}: no file name")))?;
                 Some(dynapix_io::images::read_mask(
                     input.sequence.dir.join("mask").join(name),
                 )?)
             } else {
                 None
             };
-            Ok(Some(RgbdFrame {
+            Ok(RgbdFrame {
                 t: input.sequence.frames[i].t,
                 rgb,
                 depth,
                 mask,
-            }))
+            })
         })();
-        load_ms += t0.elapsed().as_secs_f64() * 1e3;
-        let pushed = match step {
-            Ok(Some(frame)) => online.push(frame).map_err(anyhow::Error::from),
-            Ok(None) => Ok(None),
-            Err(e) => Err(e),
-        };
-        match pushed {
-            Ok(Some(r)) => results.push(r),
-            Ok(None) => {}
-            Err(e) => {
-                // Keep what was reported up to the frame that stopped the run.
-                write_online_poses(dir, &results, &skipped)?;
-                record["skipped_frames"] = json!(skipped);
-                bars.event(dynapix::ProgressEvent::End { task: &label });
-                return Err(e);
+        (images, t0.elapsed().as_secs_f64() * 1e3)
+    };
+    let streamed = input.stream(2, load, |_, (images, ms)| -> anyhow::Result<()> {
+        load_ms += ms;
+        let pushed = match images {
+            Ok(frame) => online.push(frame).map_err(anyhow::Error::from),
+            Err(dynapix::Error::Frame(bad)) if input.skip_bad_frames => {
+                tracing::warn!("skipped {bad}");
+                skipped.push(bad);
+                Ok(None)
             }
-        }
+            Err(e) => Err(e.into()),
+        };
+        results.extend(pushed?);
         bars.event(dynapix::ProgressEvent::Step {
             task: &label,
             message: "",
         });
+        Ok(())
+    });
+    if let Err(e) = streamed {
+        // Keep what was reported up to the frame that stopped the run.
+        write_online_poses(dir, &results, &skipped)?;
+        record["skipped_frames"] = json!(skipped);
+        bars.event(dynapix::ProgressEvent::End { task: &label });
+        return Err(e);
     }
     results.extend(online.finish()?);
     bars.event(dynapix::ProgressEvent::End { task: &label });
@@ -585,6 +587,7 @@ fn online_into(
         "motion_ms": per(&|r| r.motion_ms),
         "background_ms": per(&|r| r.background_ms),
         "slam_ms": per(&|r| r.slam_ms),
+        "mapping_ms": per(&|r| r.mapping_ms),
         "frame_ms": per(&|r| r.motion_ms + r.slam_ms),
         "image_loading_ms_mean": load_ms / n.max(1) as f64,
         "wall_seconds": wall,
