@@ -135,6 +135,20 @@ impl Default for RigidityParams {
     }
 }
 
+/// The finest pyramid level of a flow on images `width` pixels wide that stops at the
+/// coarsest level at least `working_width` wide, never finer than `own` (the flow's own finest
+/// level); `working_width` 0 keeps `own`.
+pub fn finest_scale_at_working_width(own: usize, working_width: u32, width: u32) -> usize {
+    if working_width == 0 {
+        return own;
+    }
+    let mut level = 0;
+    while (width >> (level + 1)) >= working_width {
+        level += 1;
+    }
+    own.max(level)
+}
+
 fn invalid(name: &'static str, message: impl Into<String>) -> MotionError {
     MotionError::InvalidParam {
         name,
@@ -153,15 +167,11 @@ impl RigidityParams {
     /// or the coarsest level at least [`RigidityParams::flow_working_width`] wide if that is
     /// coarser.
     pub fn flow_finest_scale(&self, width: u32) -> usize {
-        let preset = DisParams::preset(self.flow_preset).finest_scale;
-        if self.flow_working_width == 0 {
-            return preset;
-        }
-        let mut level = 0;
-        while (width >> (level + 1)) >= self.flow_working_width {
-            level += 1;
-        }
-        preset.max(level)
+        finest_scale_at_working_width(
+            DisParams::preset(self.flow_preset).finest_scale,
+            self.flow_working_width,
+            width,
+        )
     }
 
     /// The DIS flow of the cue for an image `width` pixels wide: the preset with its finest

@@ -374,6 +374,16 @@ pub struct OnlineConfig {
     /// seeds against 0.029 / 0.023 / 0.026 / 0.064 m with the finer level (BENCHMARKS.md,
     /// "Rigidity flow at a fixed working width"), so online keeps the finer flow.
     pub rigidity_flow_working_width: u32,
+    /// The DIS parameters of the rigidity flow online, in place of
+    /// `motion.rigidity.flow_preset` (`None`: that preset). The default is the medium preset
+    /// with OpenCV's `fast` patch search (stride 4, 16 descent iterations) and 2 variational
+    /// iterations instead of 5: about two thirds of the medium flow's time. On the Bonn
+    /// window without lookahead it gave 0.027 / 0.026 / 0.025 / 0.028 m over four RANSAC
+    /// seeds against 0.029 / 0.023 / 0.026 / 0.064 m with the medium flow, on fr1_xyz
+    /// 0.0117 against 0.0123 m and on synth walking_xyz 640×480 seeds 0–2 a mean of 0.0064
+    /// against 0.0072 m (BENCHMARKS.md, "Online: mapping beside the motion map and a cheaper
+    /// rigidity flow"). Keys left out of a value given in a file keep the default's values.
+    pub rigidity_flow: Option<DisParams>,
 }
 
 impl Default for OnlineConfig {
@@ -386,7 +396,21 @@ impl Default for OnlineConfig {
             // (walking_halfsphere 0.018 m vs 0.032 m; BENCHMARKS.md, online mode).
             past_offsets: vec![-2, -1],
             rigidity_flow_working_width: 0,
+            rigidity_flow: Some(OnlineConfig::cheap_rigidity_flow()),
         }
+    }
+}
+
+impl OnlineConfig {
+    /// The default of [`OnlineConfig::rigidity_flow`]: the medium preset with OpenCV's `fast`
+    /// patch search and 2 variational iterations.
+    pub fn cheap_rigidity_flow() -> DisParams {
+        let fast = DisParams::preset(Preset::Fast);
+        let mut p = DisParams::preset(Preset::Medium);
+        p.patch_stride = fast.patch_stride;
+        p.grad_descent_iterations = fast.grad_descent_iterations;
+        p.variational.fixed_point_iterations = 2;
+        p
     }
 }
 
@@ -630,6 +654,10 @@ impl Config {
             return Err(Error::config(format!(
                 "slam.params.map.dynapix.update: the EMA weight must lie in (0, 1], got {alpha}"
             )));
+        }
+        if let Some(p) = &self.online.rigidity_flow {
+            p.validate()
+                .map_err(|e| Error::config(format!("online.rigidity_flow: {e}")))?;
         }
         if self.online.past_offsets.iter().any(|&o| o >= 0) {
             return Err(Error::config(

@@ -169,14 +169,26 @@ struct Core {
     next_index: usize,
 }
 
-/// The rigidity cue's flow online: `motion.rigidity` with the online working width
-/// (`online.rigidity_flow_working_width`), for images `width` pixels wide.
+/// The rigidity cue's flow online, for images `width` pixels wide: `online.rigidity_flow`
+/// (or `motion.rigidity`'s preset) at the online working width
+/// (`online.rigidity_flow_working_width`).
 fn online_rigidity_flow(config: &Config, width: u32) -> DisFlow {
-    RigidityParams {
-        flow_working_width: config.online.rigidity_flow_working_width,
-        ..config.motion.rigidity.clone()
+    match &config.online.rigidity_flow {
+        Some(p) => {
+            let mut p = p.clone();
+            p.finest_scale = dynapix_motion::rigidity::finest_scale_at_working_width(
+                p.finest_scale,
+                config.online.rigidity_flow_working_width,
+                width,
+            );
+            DisFlow::new(p)
+        }
+        None => RigidityParams {
+            flow_working_width: config.online.rigidity_flow_working_width,
+            ..config.motion.rigidity.clone()
+        }
+        .flow_for_width(width),
     }
-    .flow_for_width(width)
 }
 
 impl OnlineDynaPix {
@@ -682,6 +694,53 @@ impl Core {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dynapix_flow::dis::{DisParams, Preset};
+
+    #[test]
+    fn online_rigidity_flow_has_its_own_parameters() {
+        let mut config = Config::default();
+        let medium = DisParams::preset(Preset::Medium);
+        let online = online_rigidity_flow(&config, 640).params;
+        assert_eq!(
+            (
+                online.patch_stride,
+                online.grad_descent_iterations,
+                online.variational.fixed_point_iterations
+            ),
+            (4, 16, 2)
+        );
+        assert_eq!((online.patch_size, online.finest_scale), (8, 1));
+        assert_eq!(
+            online.variational.sor_iterations,
+            medium.variational.sor_iterations
+        );
+        // From a file (merged over the default), and `null` for the offline preset.
+        let parsed = Config::from_yaml_str(
+            "online: {rigidity_flow: {patch_stride: 2, variational: {fixed_point_iterations: 0}}}",
+        )
+        .unwrap();
+        let p = online_rigidity_flow(&parsed, 640).params;
+        assert_eq!(
+            (p.patch_stride, p.variational.fixed_point_iterations),
+            (2, 0)
+        );
+        assert_eq!(
+            p.grad_descent_iterations, 16,
+            "keys left out keep the default"
+        );
+        let none = Config::from_yaml_str("online: {rigidity_flow: null}").unwrap();
+        assert_eq!(online_rigidity_flow(&none, 640).params, medium);
+        let bad = Config::from_yaml_str("online: {rigidity_flow: {patch_stride: 0}}")
+            .and_then(|c| c.validate().map(|_| c));
+        assert!(
+            bad.unwrap_err()
+                .to_string()
+                .contains("online.rigidity_flow"),
+            "a bad flow is refused naming the key"
+        );
+        config.online.rigidity_flow = None;
+        assert_eq!(online_rigidity_flow(&config, 640).params, medium);
+    }
 
     #[test]
     fn online_rigidity_flow_has_its_own_working_width() {
