@@ -375,14 +375,13 @@ pub struct OnlineConfig {
     /// "Rigidity flow at a fixed working width"), so online keeps the finer flow.
     pub rigidity_flow_working_width: u32,
     /// The DIS parameters of the rigidity flow online, in place of
-    /// `motion.rigidity.flow_preset` (`None`: that preset). The default is the medium preset
-    /// with OpenCV's `fast` patch search (stride 4, 16 descent iterations) and 2 variational
-    /// iterations instead of 5: about two thirds of the medium flow's time. On the Bonn
-    /// window without lookahead it gave 0.027 / 0.026 / 0.025 / 0.028 m over four RANSAC
-    /// seeds against 0.029 / 0.023 / 0.026 / 0.064 m with the medium flow, on fr1_xyz
-    /// 0.0117 against 0.0123 m and on synth walking_xyz 640×480 seeds 0–2 a mean of 0.0064
-    /// against 0.0072 m (BENCHMARKS.md, "Online: mapping beside the motion map and a cheaper
-    /// rigidity flow"). Keys left out of a value given in a file keep the default's values.
+    /// `motion.rigidity.flow_preset` (`None`, the default: that preset, medium). A cheaper
+    /// flow, [`OnlineConfig::cheap_rigidity_flow`], meets 15 frames/s at 640×480 on the
+    /// 2-core machine, but cost about 10 % of ATE on the Bonn window over eight RANSAC seeds
+    /// (trimmed means 0.0266 → 0.0294 m without lookahead, 0.0202 → 0.0222 m with 15 frames),
+    /// while fr1_xyz and synth walking_xyz 640×480 were as good or better (BENCHMARKS.md,
+    /// "Online: mapping beside the motion map, and a cheaper rigidity flow measured"). Keys
+    /// left out of a value given in a file take the medium preset's values.
     pub rigidity_flow: Option<DisParams>,
 }
 
@@ -396,14 +395,16 @@ impl Default for OnlineConfig {
             // (walking_halfsphere 0.018 m vs 0.032 m; BENCHMARKS.md, online mode).
             past_offsets: vec![-2, -1],
             rigidity_flow_working_width: 0,
-            rigidity_flow: Some(OnlineConfig::cheap_rigidity_flow()),
+            rigidity_flow: None,
         }
     }
 }
 
 impl OnlineConfig {
-    /// The default of [`OnlineConfig::rigidity_flow`]: the medium preset with OpenCV's `fast`
-    /// patch search and 2 variational iterations.
+    /// A cheaper value of [`OnlineConfig::rigidity_flow`] for real time at 640×480: the
+    /// medium preset with OpenCV's `fast` patch search (stride 4, 16 descent iterations) and 2
+    /// variational iterations. In a file: `online: {rigidity_flow: {patch_stride: 4,
+    /// grad_descent_iterations: 16, variational: {fixed_point_iterations: 2}}}`.
     pub fn cheap_rigidity_flow() -> DisParams {
         let fast = DisParams::preset(Preset::Fast);
         let mut p = DisParams::preset(Preset::Medium);

@@ -694,42 +694,44 @@ impl Core {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::OnlineConfig;
     use dynapix_flow::dis::{DisParams, Preset};
 
     #[test]
     fn online_rigidity_flow_has_its_own_parameters() {
         let mut config = Config::default();
         let medium = DisParams::preset(Preset::Medium);
-        let online = online_rigidity_flow(&config, 640).params;
+        // By default the online flow is the offline preset's.
+        assert_eq!(config.online.rigidity_flow, None);
+        assert_eq!(online_rigidity_flow(&config, 640).params, medium);
+        // The cheaper flow, from Rust or from a file (keys left out take the medium values).
+        config.online.rigidity_flow = Some(OnlineConfig::cheap_rigidity_flow());
+        let cheap = online_rigidity_flow(&config, 640).params;
         assert_eq!(
             (
-                online.patch_stride,
-                online.grad_descent_iterations,
-                online.variational.fixed_point_iterations
+                cheap.patch_stride,
+                cheap.grad_descent_iterations,
+                cheap.variational.fixed_point_iterations
             ),
             (4, 16, 2)
         );
-        assert_eq!((online.patch_size, online.finest_scale), (8, 1));
+        assert_eq!((cheap.patch_size, cheap.finest_scale), (8, 1));
         assert_eq!(
-            online.variational.sor_iterations,
+            cheap.variational.sor_iterations,
             medium.variational.sor_iterations
         );
-        // From a file (merged over the default), and `null` for the offline preset.
         let parsed = Config::from_yaml_str(
-            "online: {rigidity_flow: {patch_stride: 2, variational: {fixed_point_iterations: 0}}}",
+            "online: {rigidity_flow: {patch_stride: 4, grad_descent_iterations: 16, \
+             variational: {fixed_point_iterations: 2}}}",
         )
         .unwrap();
-        let p = online_rigidity_flow(&parsed, 640).params;
-        assert_eq!(
-            (p.patch_stride, p.variational.fixed_point_iterations),
-            (2, 0)
-        );
-        assert_eq!(
-            p.grad_descent_iterations, 16,
-            "keys left out keep the default"
-        );
-        let none = Config::from_yaml_str("online: {rigidity_flow: null}").unwrap();
-        assert_eq!(online_rigidity_flow(&none, 640).params, medium);
+        assert_eq!(online_rigidity_flow(&parsed, 640).params, cheap);
+        // The online working width still sets the finest level.
+        let coarse = Config::from_yaml_str(
+            "online: {rigidity_flow: {patch_stride: 4}, rigidity_flow_working_width: 160}",
+        )
+        .unwrap();
+        assert_eq!(online_rigidity_flow(&coarse, 640).params.finest_scale, 2);
         let bad = Config::from_yaml_str("online: {rigidity_flow: {patch_stride: 0}}")
             .and_then(|c| c.validate().map(|_| c));
         assert!(
@@ -738,8 +740,6 @@ mod tests {
                 .contains("online.rigidity_flow"),
             "a bad flow is refused naming the key"
         );
-        config.online.rigidity_flow = None;
-        assert_eq!(online_rigidity_flow(&config, 640).params, medium);
     }
 
     #[test]
