@@ -113,9 +113,7 @@ impl DisParams {
             },
         }
     }
-}
 
-impl DisParams {
     /// Checks the parameters a flow cannot run without: positive patch size, stride and
     /// number of bands.
     pub fn validate(&self) -> Result<(), FlowError> {
@@ -553,39 +551,12 @@ fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
             sy = _mm256_add_ps(sy, _mm256_mul_ps(d, _mm256_loadu_ps(gyp.add(oa))));
         }
     }
-    // The four horizontal sums at once, each in the scalar order `l0 + l1 + … + l7`:
-    // transpose so that vector k holds lane k of (sd, sdd, sx, sy), then add the eight
-    // vectors in lane order (`-0.0 + l0`, the start of `f32::sum`, is `l0` exactly).
-    let transpose = |a: __m128, b: __m128, c: __m128, d: __m128| {
-        let (ab_lo, ab_hi) = (_mm_unpacklo_ps(a, b), _mm_unpackhi_ps(a, b));
-        let (cd_lo, cd_hi) = (_mm_unpacklo_ps(c, d), _mm_unpackhi_ps(c, d));
-        [
-            _mm_movelh_ps(ab_lo, cd_lo),
-            _mm_movehl_ps(cd_lo, ab_lo),
-            _mm_movelh_ps(ab_hi, cd_hi),
-            _mm_movehl_ps(cd_hi, ab_hi),
-        ]
-    };
-    let lo = transpose(
-        _mm256_castps256_ps128(sd),
-        _mm256_castps256_ps128(sdd),
-        _mm256_castps256_ps128(sx),
-        _mm256_castps256_ps128(sy),
-    );
-    let hi = transpose(
-        _mm256_extractf128_ps::<1>(sd),
-        _mm256_extractf128_ps::<1>(sdd),
-        _mm256_extractf128_ps::<1>(sx),
-        _mm256_extractf128_ps::<1>(sy),
-    );
-    let mut acc = lo[0];
-    for v in lo[1..].iter().chain(&hi) {
-        acc = _mm_add_ps(acc, *v);
-    }
-    let mut out = [0.0f32; 4];
-    // SAFETY: `out` has room for 4 floats.
-    unsafe { _mm_storeu_ps(out.as_mut_ptr(), acc) };
-    out
+    [sd, sdd, sx, sy].map(|v| {
+        let mut o = [0.0f32; 8];
+        // SAFETY: `o` has room for 8 floats.
+        unsafe { _mm256_storeu_ps(o.as_mut_ptr(), v) };
+        o.iter().sum()
+    })
 }
 
 /// Scalar version of [`patch_sums`] for patch sizes without a specialised kernel.
