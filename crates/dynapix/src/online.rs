@@ -311,11 +311,20 @@ impl OnlineDynaPix {
             rgb: frame.rgb,
             depth: frame.depth,
         });
-        let orb_gray = rgb_to_gray_orbslam(&images.rgb);
-        // The three jobs of a push side by side (see the type's documentation).
+        // The three jobs of a push side by side (see the type's documentation); the grey
+        // image of the ORB front end is made with the corners.
         let (system, features, core) = (&mut self.system, &self.features, &self.core);
-        let ((mapped, mut corners), motion) = rayon::join(
-            || rayon::join(|| system.map_pending(), || features.fast_corners(&orb_gray)),
+        let ((mapped, (orb_gray, mut corners)), motion) = rayon::join(
+            || {
+                rayon::join(
+                    || system.map_pending(),
+                    || {
+                        let gray = rgb_to_gray_orbslam(&images.rgb);
+                        let corners = features.fast_corners(&gray);
+                        (gray, corners)
+                    },
+                )
+            },
             || core.weights(index, &images),
         );
         let motion = motion?;
