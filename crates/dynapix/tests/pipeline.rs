@@ -134,6 +134,48 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
 }
 
 #[test]
+fn streamed_frames_come_in_order_and_an_error_stops_the_stream() {
+    let seq = sequence();
+    let input = open(seq, &Config::default());
+    let loaded = std::sync::atomic::AtomicUsize::new(0);
+    let load = |i: usize| {
+        loaded.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        input.load_rgbd(i)
+    };
+    // Every frame, in order, the same images as a direct read.
+    let mut seen = Vec::new();
+    input
+        .stream(2, load, |i, images| -> dynapix::Result<()> {
+            let (rgb, depth) = images?;
+            if i % 40 == 0 {
+                let (r, d) = input.load_rgbd(i)?;
+                assert!(rgb == r && depth == d, "frame {i}");
+            }
+            seen.push(i);
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(seen, (0..input.len()).collect::<Vec<_>>());
+    // The consumer's first error is returned and the reader stops soon after.
+    loaded.store(0, std::sync::atomic::Ordering::SeqCst);
+    let err = input
+        .stream(2, load, |i, _| {
+            if i == 5 {
+                Err(format!("stop at {i}"))
+            } else {
+                Ok(())
+            }
+        })
+        .unwrap_err();
+    assert_eq!(err, "stop at 5");
+    let read = loaded.load(std::sync::atomic::Ordering::SeqCst);
+    assert!(
+        (6..=10).contains(&read),
+        "{read} frames read for a stream stopped at frame 5"
+    );
+}
+
+#[test]
 fn fast_corners_are_kept_for_later_passes_only_during_a_run() {
     let seq = sequence();
     let config = Config::default();
