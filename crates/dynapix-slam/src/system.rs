@@ -252,6 +252,16 @@ pub struct FrameResult {
     pub loop_closure: Option<LoopEvent>,
 }
 
+impl FrameResult {
+    /// Reports the local mapping and loop closing of the frame's keyframe with the frame.
+    fn add_mapping(&mut self, done: MappingOutcome) {
+        self.times.mapping = done.mapping_seconds;
+        self.times.loop_closing = done.loop_closing_seconds;
+        self.mapping = Some(done.mapping);
+        self.loop_closure = done.loop_closure;
+    }
+}
+
 /// One trajectory entry.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrajectoryEntry {
@@ -589,10 +599,7 @@ impl<E: FeatureExtractor> System<E> {
         self.map_pending();
         let mut result = self.track(input, features)?;
         if let Some(done) = self.map_pending() {
-            result.times.mapping = done.mapping_seconds;
-            result.times.loop_closing = done.loop_closing_seconds;
-            result.mapping = Some(done.mapping);
-            result.loop_closure = done.loop_closure;
+            result.add_mapping(done);
         }
         Ok(result)
     }
@@ -657,22 +664,11 @@ impl<E: FeatureExtractor> System<E> {
             };
         drop(stage);
         self.pending = out.new_keyframe.map(|kf| (index, kf));
-        let mut times = StepTimes {
-            extract: extract_seconds,
-            track: (t2 - t1).as_secs_f64(),
-            mapping: 0.0,
-            loop_closing: 0.0,
-        };
-        let (mut mapping, mut loop_closure) = (None, None);
+        let mut mapped = None;
         let mut reset = false;
         if out.reset_requested {
             // The order of `process`: mapping and loop closing, the reset, then the record.
-            if let Some(done) = self.map_pending() {
-                times.mapping = done.mapping_seconds;
-                times.loop_closing = done.loop_closing_seconds;
-                mapping = Some(done.mapping);
-                loop_closure = done.loop_closure;
-            }
+            mapped = self.map_pending();
             self.freeze_records();
             self.map.clear();
             self.tracker.reset();
@@ -687,7 +683,7 @@ impl<E: FeatureExtractor> System<E> {
             frozen: None,
             matches,
         });
-        Ok(FrameResult {
+        let mut result = FrameResult {
             index,
             timestamp: input.timestamp,
             state: out.state,
@@ -697,10 +693,19 @@ impl<E: FeatureExtractor> System<E> {
             inliers: out.inliers,
             reset,
             relocalised: out.relocalised,
-            times,
-            mapping,
-            loop_closure,
-        })
+            times: StepTimes {
+                extract: extract_seconds,
+                track: (t2 - t1).as_secs_f64(),
+                mapping: 0.0,
+                loop_closing: 0.0,
+            },
+            mapping: None,
+            loop_closure: None,
+        };
+        if let Some(done) = mapped {
+            result.add_mapping(done);
+        }
+        Ok(result)
     }
 
     fn freeze_records(&mut self) {
