@@ -22,7 +22,11 @@
 //!   keyframes and the waiting frames, splatted with the poses the running system gave them;
 //! - the enabled cues ([`crate::Cues`]; the paper's terms P = D·M only when that cue is on)
 //!   combine by noisy-or into static weights (quantised like the map files) and the SLAM
-//!   system tracks m with them.
+//!   system tracks m with them;
+//! - the local mapping and loop closing of the keyframe made from the frame before m run
+//!   while m's motion map is computed (with m's FAST corners), and the system tracks m only
+//!   after them: the same results as mapping each keyframe at once
+//!   ([`dynapix_slam::system::System::track_features`]).
 //!
 //! Memory is bounded by the window (`online.window` frames with their backgrounds, plus
 //! `online.background_keyframes` keyframe images and the `lookahead` frames waiting), not by
