@@ -4,7 +4,7 @@
 //! motionless floor (the ATE of a camera that never moves, on the same pairs),
 //! multi-run / multi-sequence tables (Markdown, CSV, JSON) and plots (SVG, PNG).
 //!
-//! The algorithms ([`associate`], [`ate`], [`rpe`], [`tracking`], [`aggregate`], [`report`])
+//! The algorithms ([`associate`](mod@associate), [`ate`](mod@ate), [`rpe`](mod@rpe), [`tracking`], [`aggregate`], [`report`])
 //! work on in-memory slices `&[(timestamp, camera-to-world pose)]`; [`files`] and [`plot`]
 //! are the thin file layer.
 

@@ -2,16 +2,16 @@
 //! defects and fixes in spec §7).
 //!
 //! The probability of a pixel being on something that currently moves is `P = D ⊙ M`:
-//! - [`movable`]: the movable term D from the difference between the frame and its static
+//! - [`movable`](mod@movable): the movable term D from the difference between the frame and its static
 //!   background (spec §1.3);
-//! - [`splat`]: forward-splatting view synthesis of a neighbour frame into the current view,
+//! - [`splat`](mod@splat): forward-splatting view synthesis of a neighbour frame into the current view,
 //!   through the lens distortion of the camera when it has one
 //!   (spec §1.5);
 //! - [`moving`]: the moving term M from static/dynamic flow differencing (spec §1.7);
 //! - [`background`]: a static background reconstructed from neighbouring frames (new; replaces
 //!   the external inpainting the reference needs, spec §7.2);
 //! - [`pipeline`]: one frame end to end and the ablations;
-//! - [`static_depth`]: the static depth of a view from a wide window of frames and the
+//! - [`static_depth`](mod@static_depth): the static depth of a view from a wide window of frames and the
 //!   geometric cue (nearer than the static scene ⇒ not static; new, see the module);
 //! - [`rigidity`]: a pose-free motion cue, the residual of each pixel against the dominant
 //!   rigid motion to the neighbours found by RANSAC on depth-backed optical flow (new);

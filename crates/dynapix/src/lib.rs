@@ -12,7 +12,7 @@
 //!   record of every input.
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
-//! - [`bench`] and [`profile`]: one measured run, stage by stage (`dynapix bench`).
+//! - [`bench`](mod@bench) and [`profile`]: one measured run, stage by stage (`dynapix bench`).
 //! - [`MotionProbability`] and [`StaticWeights`]: P and w = 1 − P as distinct types.
 //!
 //! Streaming a sequence folder through the online mode:

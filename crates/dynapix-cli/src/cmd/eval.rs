@@ -137,7 +137,7 @@ pub struct Args {
     /// Folder with one sub-folder per method, each holding one trajectory .txt per run.
     #[arg(long, value_name = "DIR", conflicts_with = "sequence")]
     pub runs: Option<PathBuf>,
-    /// A sequence of a multi-sequence table: NAME=GT:RUNS[:REFERENCE]. Repeatable.
+    /// A sequence of a multi-sequence table: `NAME=GT:RUNS[:REFERENCE]`. Repeatable.
     #[arg(long, value_name = "NAME=GT:RUNS[:REF]", conflicts_with = "gt")]
     pub sequence: Vec<String>,
     /// Reference frame list for the tracking rate: rgb.txt or an association file (first

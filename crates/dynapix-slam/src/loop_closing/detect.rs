@@ -3,12 +3,12 @@
 //!
 //! Per new keyframe: skip while fewer than 10 keyframes followed the last loop; otherwise the
 //! lowest bag-of-words score to a covisible keyframe is the bar loop candidates must clear in
-//! the keyframe database ([`database`]), candidates must be covisibility-consistent over
+//! the keyframe database (`database`), candidates must be covisibility-consistent over
 //! consecutive keyframes, and each consistent candidate is verified geometrically:
 //! bag-of-words matching of map points (ratio 0.75, ≥ 20), a seeded 3-point RANSAC with Horn
-//! alignment ([`solver`]), two-way guided matching through the estimate (radius 7.5), a
+//! alignment (`solver`), two-way guided matching through the estimate (radius 7.5), a
 //! refinement of the relative transform over both reprojection directions (χ² 10,
-//! [`refine`]) with ≥ 20 inliers, then the map points of the loop keyframe and its covisibles
+//! `refine`) with ≥ 20 inliers, then the map points of the loop keyframe and its covisibles
 //! are projected with the corrected pose (radius 10) and the loop is accepted with ≥ 40
 //! matches in total.
 //!
