@@ -396,13 +396,12 @@ impl Input {
     pub fn stream<T: Send, E>(
         &self,
         ahead: usize,
-        load: impl Fn(usize) -> T + Sync,
+        mut load: impl FnMut(usize) -> T + Send,
         mut consume: impl FnMut(usize, T) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
         let n = self.len();
         std::thread::scope(|scope| {
             let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, T)>(ahead.max(1));
-            let load = &load;
             scope.spawn(move || {
                 for i in 0..n {
                     if tx.send((i, load(i))).is_err() {

@@ -8,7 +8,6 @@
 //! calling thread, so a pass is deterministic.
 
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::sync_channel;
 use std::time::Instant;
 
 use dynapix_io::images::{read_mask, read_static_weights};
@@ -448,27 +447,18 @@ pub fn run_pass(
 ) -> Result<PassOutput> {
     let n = input.len();
     let task = Task::begin(progress, label, n);
-    let fed = std::thread::scope(|scope| -> Result<()> {
-        let (tx, rx) = sync_channel::<Decoded>(4);
-        let mut stage = session.feature_stage();
-        scope.spawn(move || {
-            for i in 0..n {
-                if tx
-                    .send(decode(input, i, weights, masks, &mut stage))
-                    .is_err()
-                {
-                    break;
-                }
-            }
-        });
-        for d in rx {
+    let mut stage = session.feature_stage();
+    let fed = input.stream(
+        4,
+        |i| decode(input, i, weights, masks, &mut stage),
+        |_, d| -> Result<()> {
             let prepared = match d.images {
                 Ok(images) => images,
                 Err(Error::Frame(bad)) if input.skip_bad_frames => {
                     tracing::warn!("skipped {bad}");
                     session.skip(bad);
                     task.step(&session.summary());
-                    continue;
+                    return Ok(());
                 }
                 Err(e) => return Err(e),
             };
@@ -485,9 +475,9 @@ pub fn run_pass(
                 m.as_ref(),
             )?;
             task.step(&session.summary());
-        }
-        Ok(())
-    });
+            Ok(())
+        },
+    );
     drop(task);
     match fed {
         Ok(()) => {
