@@ -86,6 +86,10 @@ struct Chunk {
     // Reduced system contributions.
     /// Upper blocks `(a, b)`, `a ≤ b`, of `−W V⁻¹ Wᵀ` at `a·n_vars + b`.
     schur: Vec<Matrix6<f64>>,
+    /// Which blocks of `schur` the last [`Chunk::reduce`] wrote (the others are zero), as
+    /// flags at `a·n_vars + b` and as a list; only these are cleared and summed.
+    touched: Vec<bool>,
+    touched_list: Vec<usize>,
     rhs: DVector<f64>,
     cost: f64,
     new_cost: f64,
@@ -118,6 +122,8 @@ impl Chunk {
             a: vec![Matrix6::zeros(); ctx.n_vars],
             gc: vec![Vector6::zeros(); ctx.n_vars],
             schur: vec![Matrix6::zeros(); ctx.n_vars * ctx.n_vars],
+            touched: vec![false; ctx.n_vars * ctx.n_vars],
+            touched_list: Vec::new(),
             rhs: DVector::zeros(n6),
             cost: 0.0,
             new_cost: 0.0,
@@ -129,7 +135,8 @@ impl Chunk {
     }
 
     /// Jacobians, residuals, point blocks `V`, `g_p`, camera blocks `A`, `g_c` and `2F`.
-    fn linearize(
+    #[inline(always)]
+    fn linearize_body(
         &mut self,
         ctx: &Ctx,
         poses: &[Rt],
@@ -188,8 +195,13 @@ impl Chunk {
     }
 
     /// Damped point inverses and this chunk's part of `−W V⁻¹ Wᵀ` and `W V⁻¹ g_p`.
-    fn reduce(&mut self, ctx: &Ctx, lambda: f64) {
-        self.schur.iter_mut().for_each(|m| *m = Matrix6::zeros());
+    #[inline(always)]
+    fn reduce_body(&mut self, ctx: &Ctx, lambda: f64) {
+        for &k in &self.touched_list {
+            self.schur[k] = Matrix6::zeros();
+            self.touched[k] = false;
+        }
+        self.touched_list.clear();
         let nv = ctx.n_vars;
         self.rhs.fill(0.0);
         let mut ys = std::mem::take(&mut self.ys);
@@ -214,14 +226,19 @@ impl Chunk {
             for (i, (&(va, _), y)) in free.iter().zip(&ys).enumerate() {
                 for (j, &(vb, lf)) in free.iter().enumerate().skip(i) {
                     let wf = &self.w[lf];
+                    let k = va.min(vb) * nv + va.max(vb);
+                    if !self.touched[k] {
+                        self.touched[k] = true;
+                        self.touched_list.push(k);
+                    }
                     // Keep only the upper blocks: `(a, b)` takes `Y_e W_fᵀ` or its transpose.
                     if j == i || va < vb {
-                        edge::sub_abt_6x3(&mut self.schur[va * nv + vb], y, wf);
+                        edge::sub_abt_6x3(&mut self.schur[k], y, wf);
                     } else if va > vb {
-                        edge::sub_abt_6x3(&mut self.schur[vb * nv + va], wf, y);
+                        edge::sub_abt_6x3(&mut self.schur[k], wf, y);
                     } else {
                         let block = edge::mul_abt_6x3(y, wf);
-                        self.schur[va * nv + va] -= block + block.transpose();
+                        self.schur[k] -= block + block.transpose();
                     }
                 }
             }
@@ -230,7 +247,8 @@ impl Chunk {
     }
 
     /// Point steps `δp = V⁻¹(−g_p − Wᵀδc)` and this chunk's part of the predicted decrease.
-    fn back_substitute(&mut self, dc: &DVector<f64>, lambda: f64) {
+    #[inline(always)]
+    fn back_substitute_body(&mut self, dc: &DVector<f64>, lambda: f64) {
         self.pred = 0.0;
         for lp in 0..self.points.len() {
             let mut t = -self.gp[lp];
@@ -244,7 +262,8 @@ impl Chunk {
     }
 
     /// `2F` at the candidate poses and `points + δp`.
-    fn candidate_cost(
+    #[inline(always)]
+    fn candidate_cost_body(
         &mut self,
         ctx: &Ctx,
         poses: &[Rt],
@@ -277,12 +296,78 @@ impl Chunk {
     }
 }
 
+/// Proof that the CPU has AVX2 (only [`Avx2::detect`] makes one).
+#[derive(Clone, Copy)]
+struct Avx2(());
+
+impl Avx2 {
+    /// `Some` when the CPU has AVX2.
+    fn detect() -> Option<Self> {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            return Some(Avx2(()));
+        }
+        None
+    }
+}
+
+/// Defines a `Chunk` method that runs its `_body` compiled for AVX2 when given an [`Avx2`]
+/// proof, and the baseline build otherwise. The same IEEE operations in the same order either
+/// way (Rust never contracts to FMA), only wider registers: the results are bit-identical.
+macro_rules! avx2_method {
+    ($(#[$m:meta])* $name:ident, $avx:ident, $body:ident, ($($a:ident: $t:ty),*)) => {
+        $(#[$m])*
+        fn $name(&mut self, isa: Option<Avx2>, $($a: $t),*) {
+            #[cfg(target_arch = "x86_64")]
+            if isa.is_some() {
+                // SAFETY: an `Avx2` exists only when the CPU has AVX2.
+                return unsafe { self.$avx($($a),*) };
+            }
+            let _ = isa;
+            self.$body($($a),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn $avx(&mut self, $($a: $t),*) {
+            self.$body($($a),*)
+        }
+    };
+}
+
+impl Chunk {
+    avx2_method!(
+        /// See [`Chunk::linearize_body`].
+        linearize, linearize_avx2, linearize_body,
+        (ctx: &Ctx, poses: &[Rt], points: &[Vector3<f64>], active: &[bool], robust: bool)
+    );
+    avx2_method!(
+        /// See [`Chunk::reduce_body`].
+        reduce, reduce_avx2, reduce_body, (ctx: &Ctx, lambda: f64)
+    );
+    avx2_method!(
+        /// See [`Chunk::back_substitute_body`].
+        back_substitute, back_substitute_avx2, back_substitute_body,
+        (dc: &DVector<f64>, lambda: f64)
+    );
+    avx2_method!(
+        /// See [`Chunk::candidate_cost_body`].
+        candidate_cost, candidate_cost_avx2, candidate_cost_body,
+        (ctx: &Ctx, poses: &[Rt], points: &[Vector3<f64>], active: &[bool], robust: bool)
+    );
+}
+
 /// Bundle adjustment of `problem` (see the module documentation).
 ///
 /// Edges with an out-of-range pose or point index, a non-finite point, or a non-positive
 /// `inv_sigma2` take no part and are reported as outliers. Missing `pose_fixed` entries mean
 /// "free". The returned `inlier[i]` refers to `problem.edges[i]`.
 pub fn bundle_adjust(problem: &BaProblem, params: &BaParams) -> BaResult {
+    bundle_adjust_on(problem, params, Avx2::detect())
+}
+
+/// [`bundle_adjust`] with the chunk kernels of `isa` (AVX2 or the baseline build).
+fn bundle_adjust_on(problem: &BaProblem, params: &BaParams, isa: Option<Avx2>) -> BaResult {
     let n_poses = problem.poses.len();
     let n_points = problem.points.len();
     let mut var_of = vec![None; n_poses];
@@ -362,8 +447,10 @@ pub fn bundle_adjust(problem: &BaProblem, params: &BaParams) -> BaResult {
         ctx: &ctx,
         chunks: &mut chunks,
         var_pose: &var_pose,
+        min_relative_decrease: params.min_relative_decrease,
+        isa,
     };
-    solver.run(
+    let mut iterations = solver.run(
         &mut poses,
         &mut points,
         &active,
@@ -374,7 +461,7 @@ pub fn bundle_adjust(problem: &BaProblem, params: &BaParams) -> BaResult {
         for (k, e) in edges.iter().enumerate() {
             active[k] = classify(&ctx, e, &poses, &points);
         }
-        solver.run(
+        iterations += solver.run(
             &mut poses,
             &mut points,
             &active,
@@ -391,6 +478,7 @@ pub fn bundle_adjust(problem: &BaProblem, params: &BaParams) -> BaResult {
         poses,
         points,
         inlier,
+        iterations,
     }
 }
 
@@ -415,10 +503,15 @@ struct Lm<'a, 'b> {
     ctx: &'a Ctx<'a>,
     chunks: &'b mut [Chunk],
     var_pose: &'a [usize],
+    /// See [`BaParams::min_relative_decrease`].
+    min_relative_decrease: f64,
+    /// The chunk kernels' instruction set.
+    isa: Option<Avx2>,
 }
 
 impl Lm<'_, '_> {
-    /// `iterations` LM iterations (g2o style, see `pose::lm`) on the active edges.
+    /// Up to `iterations` LM iterations (g2o style, see `pose::lm`) on the active edges;
+    /// returns how many ran (an iteration counts once its linearisation is done).
     fn run(
         &mut self,
         poses: &mut Vec<Se3>,
@@ -426,8 +519,9 @@ impl Lm<'_, '_> {
         active: &[bool],
         robust: bool,
         iterations: usize,
-    ) {
+    ) -> usize {
         let ctx = self.ctx;
+        let isa = self.isa;
         let nv = ctx.n_vars;
         let n6 = 6 * nv;
         let mut lambda = 0.0;
@@ -436,13 +530,15 @@ impl Lm<'_, '_> {
         let mut gc_tot = DVector::<f64>::zeros(n6);
         let mut s = DMatrix::<f64>::zeros(n6, n6);
         let mut rhs = DVector::<f64>::zeros(n6);
+        let mut done = 0;
         for it in 0..iterations {
+            done += 1;
             {
                 let rt = to_rt(poses);
                 let (p, pts) = (&rt, &*points);
                 self.chunks
                     .par_iter_mut()
-                    .for_each(|c| c.linearize(ctx, p, pts, active, robust));
+                    .for_each(|c| c.linearize(isa, ctx, p, pts, active, robust));
             }
             let mut cost = 0.0;
             a_tot.iter_mut().for_each(|m| *m = Matrix6::zeros());
@@ -475,10 +571,11 @@ impl Lm<'_, '_> {
             }
 
             let mut accepted = false;
+            let mut converged = false;
             for _ in 0..LM_MAX_TRIALS {
                 self.chunks
                     .par_iter_mut()
-                    .for_each(|c| c.reduce(ctx, lambda));
+                    .for_each(|c| c.reduce(isa, ctx, lambda));
                 rhs.copy_from(&gc_tot);
                 rhs.neg_mut();
                 for c in self.chunks.iter() {
@@ -487,7 +584,9 @@ impl Lm<'_, '_> {
                 for a in 0..nv {
                     for b in a..nv {
                         let mut block = Matrix6::zeros();
-                        for c in self.chunks.iter() {
+                        // Blocks a chunk did not write are zero: skipping them only leaves
+                        // out additions of +0.
+                        for c in self.chunks.iter().filter(|c| c.touched[a * nv + b]) {
                             block += c.schur[a * nv + b];
                         }
                         if a == b {
@@ -512,7 +611,7 @@ impl Lm<'_, '_> {
                 };
                 self.chunks
                     .par_iter_mut()
-                    .for_each(|c| c.back_substitute(&dc, lambda));
+                    .for_each(|c| c.back_substitute(isa, &dc, lambda));
                 let mut predicted = dc.dot(&(lambda * &dc - &gc_tot));
                 let mut finite = true;
                 for c in self.chunks.iter() {
@@ -529,7 +628,7 @@ impl Lm<'_, '_> {
                     let (cp, pts) = (&rt, &*points);
                     self.chunks
                         .par_iter_mut()
-                        .for_each(|c| c.candidate_cost(ctx, cp, pts, active, robust));
+                        .for_each(|c| c.candidate_cost(isa, ctx, cp, pts, active, robust));
                 }
                 let new_cost: f64 = self.chunks.iter().map(|c| c.new_cost).sum();
                 let gain = (cost - new_cost) / predicted;
@@ -544,15 +643,17 @@ impl Lm<'_, '_> {
                     lambda *= (1.0 - t * t * t).max(1.0 / 3.0);
                     nu = 2.0;
                     accepted = true;
+                    converged = cost - new_cost < self.min_relative_decrease * cost;
                     break;
                 }
                 lambda *= nu;
                 nu *= 2.0;
             }
-            if !accepted {
+            if !accepted || converged {
                 break;
             }
         }
+        done
     }
 }
 
@@ -897,6 +998,52 @@ mod tests {
         let res = bundle_adjust(&p, &BaParams::default());
         assert!(!res.inlier[n] && !res.inlier[n + 1]);
         assert!(res.inlier[..n].iter().all(|b| *b));
+    }
+
+    #[test]
+    fn avx2_and_baseline_kernels_agree_bit_for_bit() {
+        let Some(isa) = Avx2::detect() else {
+            eprintln!("skipping: no AVX2 on this CPU");
+            return;
+        };
+        let (mut p, _, _) = scene(8, 6, 600, 1.0, 3);
+        p.pose_fixed[2] = true;
+        for e in p.edges.iter_mut().step_by(7) {
+            e.obs.weight = 0.4;
+        }
+        let params = BaParams::default();
+        let a = bundle_adjust_on(&p, &params, None);
+        let b = bundle_adjust_on(&p, &params, Some(isa));
+        assert_eq!(a.poses, b.poses);
+        assert_eq!(a.points, b.points);
+        assert_eq!(a.inlier, b.inlier);
+        assert_eq!(a.iterations, b.iterations);
+    }
+
+    #[test]
+    fn converged_stages_stop_early_at_the_same_minimum() {
+        let (p, _, _) = scene(2, 6, 400, 1.0, 4);
+        let full = bundle_adjust(&p, &BaParams::default());
+        assert_eq!(full.iterations, 15, "every iteration runs by default");
+        let params = BaParams {
+            min_relative_decrease: 1e-5,
+            ..BaParams::default()
+        };
+        let early = bundle_adjust(&p, &params);
+        assert!(
+            early.iterations < full.iterations,
+            "{} iterations",
+            early.iterations
+        );
+        let pe = max_pose_err(&early.poses, &full.poses);
+        let mut d: Vec<f64> = p
+            .edges
+            .iter()
+            .map(|e| (early.points[e.point] - full.points[e.point]).norm())
+            .collect();
+        d.sort_by(f64::total_cmp);
+        let p95 = d[d.len() * 95 / 100];
+        assert!(pe < 1e-4 && p95 < 1e-3, "{pe} {p95}");
     }
 
     #[test]

@@ -142,7 +142,14 @@ pub(crate) fn chi2(r: &Vector3<f64>, inv_sigma2: f64) -> f64 {
 /// the bottleneck of the Schur complement.
 #[inline(always)]
 pub(crate) fn mul_abt_6x3(a: &Matrix6x3<f64>, b: &Matrix6x3<f64>) -> Matrix6<f64> {
-    Matrix6::from_fn(|i, j| a[(i, 0)] * b[(j, 0)] + a[(i, 1)] * b[(j, 1)] + a[(i, 2)] * b[(j, 2)])
+    let (a, b) = (&a.data.0, &b.data.0);
+    let mut out = Matrix6::zeros();
+    for (j, col) in out.data.0.iter_mut().enumerate() {
+        for (i, o) in col.iter_mut().enumerate() {
+            *o = a[0][i] * b[0][j] + a[1][i] * b[1][j] + a[2][i] * b[2][j];
+        }
+    }
+    out
 }
 
 /// `s −= a·bᵀ` for two 6×3 blocks, each entry computed exactly as [`mul_abt_6x3`] does (so
@@ -160,20 +167,33 @@ pub(crate) fn sub_abt_6x3(s: &mut Matrix6<f64>, a: &Matrix6x3<f64>, b: &Matrix6x
     }
 }
 
-/// `s·aᵀa` for a 3×6 Jacobian.
+/// `s·aᵀa` for a 3×6 Jacobian (the upper triangle computed, the lower one mirrored: the
+/// products commute exactly, so every entry is the one the full product gives).
 #[inline(always)]
 pub(crate) fn ata_3x6(a: &Matrix3x6<f64>, s: f64) -> Matrix6<f64> {
-    Matrix6::from_fn(|i, j| {
-        s * (a[(0, i)] * a[(0, j)] + a[(1, i)] * a[(1, j)] + a[(2, i)] * a[(2, j)])
-    })
+    let a = &a.data.0;
+    let mut out = Matrix6::zeros();
+    for j in 0..6 {
+        for i in 0..=j {
+            let v = s * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
+            out.data.0[j][i] = v;
+            out.data.0[i][j] = v;
+        }
+    }
+    out
 }
 
 /// `s·aᵀb` for a 3×6 and a 3×3 block.
 #[inline(always)]
 pub(crate) fn atb_3x6_3x3(a: &Matrix3x6<f64>, b: &Matrix3<f64>, s: f64) -> Matrix6x3<f64> {
-    Matrix6x3::from_fn(|i, j| {
-        s * (a[(0, i)] * b[(0, j)] + a[(1, i)] * b[(1, j)] + a[(2, i)] * b[(2, j)])
-    })
+    let (a, b) = (&a.data.0, &b.data.0);
+    let mut out = Matrix6x3::zeros();
+    for (j, col) in out.data.0.iter_mut().enumerate() {
+        for (i, o) in col.iter_mut().enumerate() {
+            *o = s * (a[i][0] * b[j][0] + a[i][1] * b[j][1] + a[i][2] * b[j][2]);
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -253,6 +273,29 @@ mod tests {
         let m = Matrix3::from_fn(|i, k| (i + 2 * k) as f64 * 0.3 - 0.5);
         assert!((ata_3x6(&j, 2.0) - 2.0 * j.transpose() * j).norm() < 1e-12);
         assert!((atb_3x6_3x3(&j, &m, 2.0) - 2.0 * j.transpose() * m).norm() < 1e-12);
+    }
+
+    /// The written-out products give the bits of the entry-wise formulas they replaced (the
+    /// mirrored half of `aᵀa` included), so the BA's results did not change.
+    #[test]
+    fn small_products_are_bit_identical_to_their_entry_formulas() {
+        let a = Matrix6x3::from_fn(|i, j| ((i * 3 + j) as f64 * 0.37 - 2.0).sin() * 1e3);
+        let b = Matrix6x3::from_fn(|i, j| ((i + 5 * j) as f64 * -0.21 + 1.0).cos() / 7.0);
+        let ab = Matrix6::from_fn(|i, j| {
+            a[(i, 0)] * b[(j, 0)] + a[(i, 1)] * b[(j, 1)] + a[(i, 2)] * b[(j, 2)]
+        });
+        assert_eq!(mul_abt_6x3(&a, &b), ab);
+        let j = Matrix3x6::from_fn(|i, k| ((i * 6 + k) as f64 * 0.13 - 1.0).tan());
+        let m = Matrix3::from_fn(|i, k| ((i + 2 * k) as f64 * 0.3 - 0.5).exp());
+        let s = 0.4137;
+        let ata = Matrix6::from_fn(|r, c| {
+            s * (j[(0, r)] * j[(0, c)] + j[(1, r)] * j[(1, c)] + j[(2, r)] * j[(2, c)])
+        });
+        assert_eq!(ata_3x6(&j, s), ata);
+        let atb = Matrix6x3::from_fn(|r, c| {
+            s * (j[(0, r)] * m[(0, c)] + j[(1, r)] * m[(1, c)] + j[(2, r)] * m[(2, c)])
+        });
+        assert_eq!(atb_3x6_3x3(&j, &m, s), atb);
     }
 
     /// The fused kernel of the Schur complement gives the same bits as forming the product

@@ -145,6 +145,9 @@ pub struct BaParams {
     pub iterations_refine: usize,
     /// Use the Huber kernel in the first stage (false for ORB-SLAM2's global BA).
     pub robust: bool,
+    /// A stage stops early once an accepted step lowers the cost by less than this fraction
+    /// of it (converged); 0 runs every iteration, as ORB-SLAM2's g2o does.
+    pub min_relative_decrease: f64,
     /// χ² threshold of mono edges (5.991).
     pub chi2_mono: f64,
     /// χ² threshold of stereo edges (7.815).
@@ -164,6 +167,7 @@ impl Default for BaParams {
             iterations_robust: 5,
             iterations_refine: 10,
             robust: true,
+            min_relative_decrease: 0.0,
             chi2_mono: 5.991,
             chi2_stereo: 7.815,
             weight_mode: WeightMode::Paper,
@@ -181,4 +185,6 @@ pub struct BaResult {
     pub points: Vec<Vector3<f64>>,
     /// Per edge: false when classified as an outlier (χ² over threshold or negative depth).
     pub inlier: Vec<bool>,
+    /// Levenberg–Marquardt iterations run, both stages together.
+    pub iterations: usize,
 }

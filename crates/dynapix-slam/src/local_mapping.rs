@@ -187,6 +187,9 @@ impl LocalMapper {
             .enumerate()
             .filter_map(|(i, m)| m.map(|m| (i, m)))
             .collect();
+        // A point's refresh reads only that point and the keyframes, so refreshing the new
+        // observers' points together after the loop gives what refreshing each one at once did.
+        let mut observed = Vec::new();
         for (i, mp) in mps {
             if map.point(mp).is_none() {
                 map.set_keyframe_match(kf, i, None);
@@ -194,12 +197,12 @@ impl LocalMapper {
             }
             if !map.is_in_keyframe(mp, kf) {
                 map.add_observation(mp, kf, i);
-                map.update_normal_and_depth(mp);
-                map.compute_distinctive_descriptor(mp);
+                observed.push(mp);
             } else {
                 self.recent.push(mp);
             }
         }
+        map.refresh_points(&observed, true, true);
         map.update_connections(kf);
     }
 
@@ -433,10 +436,7 @@ impl LocalMapper {
             .keyframe(kf)
             .map(|k| k.map_points.iter().flatten().copied().collect())
             .unwrap_or_default();
-        for m in own {
-            map.compute_distinctive_descriptor(m);
-            map.update_normal_and_depth(m);
-        }
+        map.refresh_points(&own, true, true);
         map.update_connections(kf);
         fused
     }
@@ -516,14 +516,14 @@ impl LocalMapper {
                 k.pose = crate::frame::normalized(p);
             }
         }
+        let mut moved = Vec::with_capacity(points.len());
         for (pi, &m) in points.iter().enumerate() {
             if let (Some(p), Some(x)) = (map.point_mut(m), result.points.get(pi)) {
                 p.position = *x;
-            } else {
-                continue;
+                moved.push(m);
             }
-            map.update_normal_and_depth(m);
         }
+        map.refresh_points(&moved, false, true);
         outliers
     }
 
