@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{ba_problem, pnp_problem, pose_graph_problem, pose_problem};
+use common::{ba_problem, ba_problem_sized, pnp_problem, pose_graph_problem, pose_problem};
 use criterion::{Criterion, criterion_group, criterion_main};
 use dynapix_geometry::PinholeCamera;
 use dynapix_geometry::pnp::{PnpRansac, PnpRansacParams};
@@ -25,6 +25,12 @@ fn bench(c: &mut Criterion) {
     group.sample_size(20);
     group.bench_function("10_poses_2000_points_10000_edges", |b| {
         b.iter(|| bundle_adjust(black_box(&ba), black_box(&params)))
+    });
+    // The size of ORB-SLAM2 mode's local BAs on synthetic walking_xyz 640×480 (≈ 20 free
+    // keyframes, ≈ 32 000 edges).
+    let big = ba_problem_sized(22, 4000, 8);
+    group.bench_function("22_poses_4000_points_32000_edges", |b| {
+        b.iter(|| bundle_adjust(black_box(&big), black_box(&params)))
     });
     group.finish();
 

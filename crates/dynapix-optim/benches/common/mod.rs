@@ -63,8 +63,13 @@ pub fn pose_problem() -> PoseOnlyProblem {
 }
 
 pub fn ba_problem() -> BaProblem {
+    ba_problem_sized(10, 2000, 5)
+}
+
+/// A local-BA problem of `n_poses` keyframes (the first two fixed) and `n_points` points,
+/// each seen by `per_point` consecutive keyframes.
+pub fn ba_problem_sized(n_poses: usize, n_points: usize, per_point: usize) -> BaProblem {
     let mut rng = ChaCha8Rng::seed_from_u64(2);
-    let n_poses = 10;
     let truth: Vec<Se3> = (0..n_poses)
         .map(|i| {
             let f = i as f64;
@@ -77,15 +82,14 @@ pub fn ba_problem() -> BaProblem {
         .collect();
     let mut points = Vec::new();
     let mut edges = Vec::new();
-    for j in 0..2000 {
+    for j in 0..n_points {
         let x = Vector3::new(
             rng.random_range(-1.5..2.0),
             rng.random_range(-1.0..1.0),
             rng.random_range(2.5..6.0),
         );
-        // Every point is seen by 5 consecutive keyframes: 10000 edges.
-        let first = j % (n_poses - 4);
-        for (i, t) in truth.iter().enumerate().skip(first).take(5) {
+        let first = j % (n_poses + 1 - per_point);
+        for (i, t) in truth.iter().enumerate().skip(first).take(per_point) {
             let k = edges.len();
             edges.push(BaEdge {
                 pose: i,
