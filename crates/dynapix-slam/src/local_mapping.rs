@@ -53,10 +53,7 @@ pub struct LocalMappingParams {
     /// local points are held fixed). ORB-SLAM2 takes all covisibles, which makes every local
     /// BA global when the whole map is covisible (small static scenes); 20 keeps it local.
     pub ba_max_local_keyframes: usize,
-    /// Bundle adjustment parameters: ORB-SLAM2's 5 robust + 10 refining iterations, each stage
-    /// ending early once a step lowers the cost by less than 10⁻⁴ of it (ORB-SLAM2's g2o runs
-    /// every iteration unless a new keyframe aborts it; measured in BENCHMARKS.md, "Local BA
-    /// that stops when converged").
+    /// Bundle adjustment parameters (ORB-SLAM2's 5 robust + 10 refining iterations).
     pub ba: BaParams,
     /// Matcher thresholds.
     pub matcher: MatcherParams,
@@ -81,10 +78,7 @@ impl Default for LocalMappingParams {
             kf_cull_observers: 3,
             bow_group_depth: 2,
             ba_max_local_keyframes: 20,
-            ba: BaParams {
-                min_relative_decrease: 1e-4,
-                ..BaParams::default()
-            },
+            ba: BaParams::default(),
             matcher: MatcherParams::default(),
         }
     }
