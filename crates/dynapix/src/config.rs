@@ -280,13 +280,6 @@ pub struct SlamConfig {
     pub vocabulary: VocabularyChoice,
     /// Added to the relocalisation seed (run k of `--runs` uses `seed + k`).
     pub seed: u64,
-    /// ORB-SLAM2 mode's local BA (and an ORB-SLAM2 first pass) ends a stage once a step
-    /// lowers the cost by less than this fraction of it (10⁻⁴; 0 runs every iteration). The
-    /// deterministic stand-in for ORB-SLAM2 cutting local BA short when the next keyframe
-    /// arrives. The DynaPix methods use `params.mapping.ba.min_relative_decrease` (0): on the
-    /// Bonn window their online median ATE rose 6–7 % with 10⁻⁴ (BENCHMARKS.md, "Local BA
-    /// that stops when converged").
-    pub orbslam2_ba_min_relative_decrease: f64,
 }
 
 impl Default for MotionConfig {
@@ -455,7 +448,6 @@ impl Config {
                 params: Self::slam_defaults(mode),
                 vocabulary: VocabularyChoice::Embedded,
                 seed: 0,
-                orbslam2_ba_min_relative_decrease: 1e-4,
             },
             passes: PassConfig::for_mode(mode),
             online: OnlineConfig::default(),
@@ -649,19 +641,11 @@ impl Config {
         if !(self.sequence.max_diff.is_finite() && self.sequence.max_diff > 0.0) {
             return Err(Error::config("sequence.max_diff must be positive"));
         }
-        for (key, v) in [
-            (
-                "slam.orbslam2_ba_min_relative_decrease",
-                self.slam.orbslam2_ba_min_relative_decrease,
-            ),
-            (
-                "slam.params.mapping.ba.min_relative_decrease",
-                self.slam.params.mapping.ba.min_relative_decrease,
-            ),
-        ] {
-            if !(0.0..1.0).contains(&v) {
-                return Err(Error::config(format!("{key} must lie in [0, 1), got {v}")));
-            }
+        let v = self.slam.params.mapping.ba.min_relative_decrease;
+        if !(0.0..1.0).contains(&v) {
+            return Err(Error::config(format!(
+                "slam.params.mapping.ba.min_relative_decrease must lie in [0, 1), got {v}"
+            )));
         }
         let d = &self.slam.params.map.dynapix;
         for (key, v) in [("gamma_add", d.gamma_add), ("gamma_del", d.gamma_del)] {
@@ -762,7 +746,6 @@ impl Config {
             p.tracking.predicted_frames = 0;
             p.final_global_ba = false;
             p.final_pose_refinement = false;
-            p.mapping.ba.min_relative_decrease = self.slam.orbslam2_ba_min_relative_decrease;
         }
         p
     }
@@ -835,18 +818,27 @@ mod tests {
         // The final refinements are offline DynaPix only.
         assert!(p.system_params().final_pose_refinement);
         assert!(!orb.final_pose_refinement && !orb.final_global_ba);
-        // Only ORB-SLAM2 mode's local BA stops when converged.
-        assert_eq!(orb.mapping.ba.min_relative_decrease, 1e-4);
+        // Local BA runs every iteration (ORB-SLAM2's schedule) unless told to stop when
+        // converged; the option is checked.
+        assert_eq!(orb.mapping, SystemParams::default().mapping);
         assert_eq!(p.system_params().mapping.ba.min_relative_decrease, 0.0);
-        let mut off = p.clone();
-        off.slam.orbslam2_ba_min_relative_decrease = 0.0;
-        let orb_off = off.with_method(Method::Orbslam2).system_params();
-        assert_eq!(orb_off.mapping, SystemParams::default().mapping);
+        let c = Config::from_yaml_str(
+            "slam: {params: {mapping: {ba: {min_relative_decrease: 1.0e-4}}}}\n",
+        )
+        .unwrap();
+        assert_eq!(
+            c.with_method(Method::Orbslam2)
+                .system_params()
+                .mapping
+                .ba
+                .min_relative_decrease,
+            1e-4
+        );
         for bad in [-1e-4, 1.0, f64::NAN] {
             let mut c = p.clone();
-            c.slam.orbslam2_ba_min_relative_decrease = bad;
+            c.slam.params.mapping.ba.min_relative_decrease = bad;
             let e = c.validate().unwrap_err().to_string();
-            assert!(e.contains("slam.orbslam2_ba_min_relative_decrease"), "{e}");
+            assert!(e.contains("min_relative_decrease"), "{e}");
         }
         let mut all = p.clone();
         all.slam.params.final_global_ba = true;
