@@ -101,6 +101,21 @@ fn bench_reports_each_stage_of_the_method_that_ran() {
         "{text}"
     );
 
+    // Repeated runs: each from scratch, all listed, the table from the median one.
+    let (rep, text) = bench(
+        &seq,
+        &tmp.path().join("rep.json"),
+        &["--method", "orbslam2", "--repeat", "3"],
+    );
+    let walls = rep["repeat_wall_seconds"].as_array().unwrap();
+    assert_eq!(walls.len(), 3, "{rep}");
+    let mut w: Vec<f64> = walls.iter().map(|x| x.as_f64().unwrap()).collect();
+    w.sort_by(f64::total_cmp);
+    assert_eq!(rep["wall_seconds"].as_f64().unwrap(), w[1]);
+    assert_eq!(calls(&rep, "stages", "orb extraction"), 24);
+    assert_eq!(rep["ate_rmse_m"], orb["ate_rmse_m"]);
+    assert!(text.contains("3 runs:"), "{text}");
+
     let (dp, _) = bench(&seq, &tmp.path().join("dp.json"), &["--method", "dynapix"]);
     let stages = names(&dp, "stages");
     for s in [

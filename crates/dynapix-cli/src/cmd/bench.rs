@@ -30,6 +30,12 @@ pub struct Args {
     /// Online: frames of latency allowed (as in `run`).
     #[arg(long, requires = "online")]
     pub lookahead: Option<usize>,
+    /// Measure this many runs, each from scratch, one after the other: every run's speed is
+    /// listed and the table is the median run's (by wall time). On a shared machine the
+    /// spread between runs is part of the result.
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    pub repeat: u32,
     /// Write the report as JSON to this file.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
@@ -58,18 +64,26 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     };
     let config = super::run::config(&run_args)?;
     let input = args.seq.open(&config)?;
-    let (report, trajectory) = if args.online {
-        dynapix::bench_online(&config, &input, profiler, bars)?
-    } else {
-        let (r, out) = dynapix::bench_offline(&config, &input, profiler, bars)?;
-        let t = out
-            .final_pass()
-            .map(|p| p.trajectory.clone())
-            .unwrap_or_default();
-        (r, t)
-    };
+    let mut runs = Vec::with_capacity(args.repeat as usize);
+    for _ in 0..args.repeat {
+        runs.push(if args.online {
+            dynapix::bench_online(&config, &input, profiler, bars)?
+        } else {
+            let (r, out) = dynapix::bench_offline(&config, &input, profiler, bars)?;
+            let t = out
+                .final_pass()
+                .map(|p| p.trajectory.clone())
+                .unwrap_or_default();
+            (r, t)
+        });
+    }
+    let walls: Vec<f64> = runs.iter().map(|(r, _)| r.wall_seconds).collect();
+    let (report, trajectory) = runs.swap_remove(median_index(&walls));
     let ate = ate(&args.seq.seq_dir, &trajectory, &input.timestamps())?;
     let mut text = report.to_markdown();
+    if walls.len() > 1 {
+        text.push_str(&repeat_lines(&walls, report.frames));
+    }
     if let Some((a, floor)) = ate {
         text.push_str(&format!(
             "ATE RMSE {a:.4} m (motionless floor {floor:.4} m)\n"
@@ -85,6 +99,7 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         v["ate_rmse_m"] = json!(ate.map(|a| a.0));
         v["motionless_floor_m"] = json!(ate.map(|a| a.1));
         v["config"] = config.to_json_value();
+        v["repeat_wall_seconds"] = json!(walls);
         v["build"] = json!(if cfg!(debug_assertions) {
             "debug"
         } else {
@@ -93,6 +108,31 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         write_json(p, &v)?;
     }
     Ok(())
+}
+
+/// Index of the median of `values` (the lower one of the middle two).
+fn median_index(values: &[f64]) -> usize {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+    order[(order.len() - 1) / 2]
+}
+
+/// One line per run (wall time and frames/s), then the spread, for `--repeat`.
+fn repeat_lines(walls: &[f64], frames: usize) -> String {
+    let fps = |w: f64| frames as f64 / w.max(f64::MIN_POSITIVE);
+    let mut text = String::from("\n| run | wall (s) | frames/s |\n|---:|---:|---:|\n");
+    for (k, &w) in walls.iter().enumerate() {
+        text.push_str(&format!("| {} | {w:.2} | {:.2} |\n", k + 1, fps(w)));
+    }
+    let lo = walls.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = walls.iter().copied().fold(0.0, f64::max);
+    text.push_str(&format!(
+        "\n{} runs: {:.2}–{:.2} frames/s (wall {lo:.2}–{hi:.2} s); the table above is the median run's\n",
+        walls.len(),
+        fps(hi),
+        fps(lo),
+    ));
+    text
 }
 
 /// ATE RMSE and motionless floor of `trajectory` against the sequence's ground truth.
@@ -114,4 +154,23 @@ fn ate(
         &dynapix_eval::EvalParams::default(),
     )?;
     Ok(Some((ev.ate.stats.rmse, ev.motionless_floor())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_median_run_and_the_spread_are_reported() {
+        assert_eq!(median_index(&[3.0]), 0);
+        assert_eq!(median_index(&[5.0, 1.0, 3.0]), 2);
+        assert_eq!(median_index(&[4.0, 1.0, 3.0, 2.0]), 3);
+        let text = repeat_lines(&[10.0, 12.5], 300);
+        assert!(text.contains("| 1 | 10.00 | 30.00 |"), "{text}");
+        assert!(text.contains("| 2 | 12.50 | 24.00 |"), "{text}");
+        assert!(
+            text.contains("2 runs: 24.00–30.00 frames/s (wall 10.00–12.50 s)"),
+            "{text}"
+        );
+    }
 }
