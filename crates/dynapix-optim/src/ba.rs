@@ -776,6 +776,18 @@ mod tests {
     }
 
     /// Largest error over the points that have at least one observation.
+    /// 95th percentile over the edges of `p` of the distance between their points in `a`
+    /// and `b` (the bulk of the points, not the worst one).
+    fn p95_point_diff(p: &BaProblem, a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+        let mut d: Vec<f64> = p
+            .edges
+            .iter()
+            .map(|e| (a[e.point] - b[e.point]).norm())
+            .collect();
+        d.sort_by(f64::total_cmp);
+        d[d.len() * 95 / 100]
+    }
+
     fn max_point_err(p: &BaProblem, a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
         p.edges
             .iter()
@@ -820,13 +832,7 @@ mod tests {
         let to_ml = max_pose_err(&res.poses, &from_truth.poses);
         // The robust stage may end with a slightly different outlier set (one edge here), so
         // compare the bulk of the points, not the worst one.
-        let mut d: Vec<f64> = p
-            .edges
-            .iter()
-            .map(|e| (res.points[e.point] - from_truth.points[e.point]).norm())
-            .collect();
-        d.sort_by(f64::total_cmp);
-        let p95 = d[d.len() * 95 / 100];
+        let p95 = p95_point_diff(&p, &res.points, &from_truth.points);
         assert!(pe < 0.02, "pose error {pe}");
         assert!(
             to_ml < 1e-3 && p95 < 2e-3,
@@ -1036,13 +1042,7 @@ mod tests {
             early.iterations
         );
         let pe = max_pose_err(&early.poses, &full.poses);
-        let mut d: Vec<f64> = p
-            .edges
-            .iter()
-            .map(|e| (early.points[e.point] - full.points[e.point]).norm())
-            .collect();
-        d.sort_by(f64::total_cmp);
-        let p95 = d[d.len() * 95 / 100];
+        let p95 = p95_point_diff(&p, &early.points, &full.points);
         assert!(pe < 1e-4 && p95 < 1e-3, "{pe} {p95}");
     }
 
