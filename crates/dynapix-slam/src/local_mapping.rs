@@ -53,7 +53,7 @@ pub struct LocalMappingParams {
     /// local points are held fixed). ORB-SLAM2 takes all covisibles, which makes every local
     /// BA global when the whole map is covisible (small static scenes); 20 keeps it local.
     pub ba_max_local_keyframes: usize,
-    /// Bundle adjustment parameters (ORB-SLAM2's 5 robust + 10 refining iterations).
+    /// Bundle adjustment parameters.
     pub ba: BaParams,
     /// Matcher thresholds.
     pub matcher: MatcherParams,
@@ -187,9 +187,6 @@ impl LocalMapper {
             .enumerate()
             .filter_map(|(i, m)| m.map(|m| (i, m)))
             .collect();
-        // A point's refresh reads only that point and the keyframes, so refreshing the new
-        // observers' points together after the loop gives what refreshing each one at once did.
-        let mut observed = Vec::new();
         for (i, mp) in mps {
             if map.point(mp).is_none() {
                 map.set_keyframe_match(kf, i, None);
@@ -197,12 +194,12 @@ impl LocalMapper {
             }
             if !map.is_in_keyframe(mp, kf) {
                 map.add_observation(mp, kf, i);
-                observed.push(mp);
+                map.update_normal_and_depth(mp);
+                map.compute_distinctive_descriptor(mp);
             } else {
                 self.recent.push(mp);
             }
         }
-        map.refresh_points(&observed, true, true);
         map.update_connections(kf);
     }
 
@@ -436,7 +433,10 @@ impl LocalMapper {
             .keyframe(kf)
             .map(|k| k.map_points.iter().flatten().copied().collect())
             .unwrap_or_default();
-        map.refresh_points(&own, true, true);
+        for m in own {
+            map.compute_distinctive_descriptor(m);
+            map.update_normal_and_depth(m);
+        }
         map.update_connections(kf);
         fused
     }
@@ -516,14 +516,14 @@ impl LocalMapper {
                 k.pose = crate::frame::normalized(p);
             }
         }
-        let mut moved = Vec::with_capacity(points.len());
         for (pi, &m) in points.iter().enumerate() {
             if let (Some(p), Some(x)) = (map.point_mut(m), result.points.get(pi)) {
                 p.position = *x;
-                moved.push(m);
+            } else {
+                continue;
             }
+            map.update_normal_and_depth(m);
         }
-        map.refresh_points(&moved, false, true);
         outliers
     }
 

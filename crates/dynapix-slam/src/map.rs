@@ -8,7 +8,6 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use dynapix_geometry::Se3;
 use nalgebra::Vector3;
-use rayon::prelude::*;
 
 use crate::features::{Descriptor, KeyPoint, hamming};
 use crate::frame::{FeatureGrid, Frame, ScalePyramid};
@@ -328,16 +327,6 @@ impl Default for MapParams {
     }
 }
 
-/// A point's new representative descriptor and the observations it was chosen from.
-type DescriptorUpdate = (Vec<(KeyFrameId, usize)>, Descriptor);
-
-/// A point's new scale-invariance distances and, when it has observers, viewing direction.
-struct NormalUpdate {
-    max_distance: f64,
-    min_distance: f64,
-    normal: Option<Vector3<f64>>,
-}
-
 /// The map: sole owner of keyframes and map points.
 pub struct Map {
     keyframes: Arena<KeyFrame>,
@@ -654,15 +643,7 @@ impl Map {
     /// Recomputes the representative descriptor: the observation descriptor with the least
     /// median Hamming distance to the others.
     pub fn compute_distinctive_descriptor(&mut self, mp: MapPointId) {
-        if let Some(u) = self.distinctive_descriptor_update(mp) {
-            self.apply_descriptor_update(mp, u);
-        }
-    }
-
-    /// What [`Map::compute_distinctive_descriptor`] would set (the descriptor and its basis);
-    /// `None` when it would change nothing.
-    fn distinctive_descriptor_update(&self, mp: MapPointId) -> Option<DescriptorUpdate> {
-        let p = self.point(mp)?;
+        let Some(p) = self.point(mp) else { return };
         let mut basis = Vec::with_capacity(p.observations.len());
         let mut descs: Vec<Descriptor> = Vec::with_capacity(p.observations.len());
         for (&kf, &idx) in &p.observations {
@@ -672,12 +653,12 @@ impl Map {
             }
         }
         if descs.is_empty() {
-            return None;
+            return;
         }
         // Keyframe descriptors never change: the same observations give the same choice, so
         // the quadratic search below runs only when they changed since the last one.
         if p.descriptor_basis.0 == basis && p.descriptor_basis.1 == p.descriptor {
-            return None;
+            return;
         }
         let n = descs.len();
         // The distance matrix is symmetric: each pair is computed once, and the median of a
@@ -697,10 +678,7 @@ impl Map {
                 best = (median, i);
             }
         }
-        Some((basis, descs[best.1]))
-    }
-
-    fn apply_descriptor_update(&mut self, mp: MapPointId, (basis, d): DescriptorUpdate) {
+        let d = descs[best.1];
         if let Some(p) = self.point_mut(mp) {
             p.descriptor = d;
             p.descriptor_basis = (basis, d);
@@ -710,14 +688,7 @@ impl Map {
     /// Recomputes the mean viewing direction and the scale-invariance distances from the
     /// reference keyframe (ORB-SLAM2 `UpdateNormalAndDepth`).
     pub fn update_normal_and_depth(&mut self, mp: MapPointId) {
-        if let Some(u) = self.normal_and_depth_update(mp) {
-            self.apply_normal_update(mp, u);
-        }
-    }
-
-    /// What [`Map::update_normal_and_depth`] would set; `None` when it would change nothing.
-    fn normal_and_depth_update(&self, mp: MapPointId) -> Option<NormalUpdate> {
-        let p = self.point(mp)?;
+        let Some(p) = self.point(mp) else { return };
         let pos = p.position;
         let mut normal = Vector3::zeros();
         let mut n = 0usize;
@@ -731,73 +702,27 @@ impl Map {
                 }
             }
         }
-        let r = self.keyframe(p.reference)?;
-        let &ridx = p.observations.get(&p.reference)?;
+        let Some(r) = self.keyframe(p.reference) else {
+            return;
+        };
+        let Some(&ridx) = p.observations.get(&p.reference) else {
+            return;
+        };
         let dist = (pos - r.center()).norm();
         let level = r.keys_un.get(ridx).map_or(0, |k| k.octave as usize);
         let level_scale = self.pyramid.scale.get(level).copied().unwrap_or(1.0) as f64;
         let top = self.pyramid.scale.last().copied().unwrap_or(1.0) as f64;
         let max_distance = dist * level_scale;
         let min_distance = max_distance / top;
-        let normal = (n > 0).then(|| {
-            let mut v = normal / n as f64;
-            let nn = v.norm();
-            if nn > 0.0 {
-                v /= nn;
-            }
-            v
-        });
-        Some(NormalUpdate {
-            max_distance,
-            min_distance,
-            normal,
-        })
-    }
-
-    fn apply_normal_update(&mut self, mp: MapPointId, u: NormalUpdate) {
         if let Some(p) = self.point_mut(mp) {
-            p.max_distance = u.max_distance;
-            p.min_distance = u.min_distance;
-            if let Some(v) = u.normal {
-                p.normal = v;
-            }
-        }
-    }
-
-    /// [`Map::compute_distinctive_descriptor`] (when `descriptor`) and
-    /// [`Map::update_normal_and_depth`] (when `normal`) of every point in `points`, computed
-    /// in parallel and applied in order. Each point's update reads only that point and the
-    /// keyframes, and writes only that point, so the result is the one of calling the two
-    /// methods point by point, on any number of threads.
-    pub fn refresh_points(&mut self, points: &[MapPointId], descriptor: bool, normal: bool) {
-        /// Below this many points the work is not worth a parallel split.
-        const MIN_PER_TASK: usize = 32;
-        let updates: Vec<(Option<DescriptorUpdate>, Option<NormalUpdate>)> = {
-            let map = &*self;
-            let one = |&m: &MapPointId| {
-                (
-                    descriptor
-                        .then(|| map.distinctive_descriptor_update(m))
-                        .flatten(),
-                    normal.then(|| map.normal_and_depth_update(m)).flatten(),
-                )
-            };
-            if points.len() < 2 * MIN_PER_TASK {
-                points.iter().map(one).collect()
-            } else {
-                points
-                    .par_iter()
-                    .with_min_len(MIN_PER_TASK)
-                    .map(one)
-                    .collect()
-            }
-        };
-        for (&m, (d, n)) in points.iter().zip(updates) {
-            if let Some(d) = d {
-                self.apply_descriptor_update(m, d);
-            }
-            if let Some(n) = n {
-                self.apply_normal_update(m, n);
+            p.max_distance = max_distance;
+            p.min_distance = min_distance;
+            if n > 0 {
+                p.normal = normal / n as f64;
+                let nn = p.normal.norm();
+                if nn > 0.0 {
+                    p.normal /= nn;
+                }
             }
         }
     }
@@ -1103,72 +1028,6 @@ mod tests {
         m.erase_observation(p, ks[3]);
         m.compute_distinctive_descriptor(p);
         assert_eq!(m.point(p).unwrap().descriptor, before);
-    }
-
-    /// A map of 5 keyframes at different places and 120 points each seen by 2–5 of them, with
-    /// descriptors that differ per keyframe and keypoint.
-    fn map_for_refresh() -> (Map, Vec<MapPointId>) {
-        let mut m = map();
-        let n = 120;
-        let ks: Vec<KeyFrameId> = (0..5u8)
-            .map(|j| {
-                let mut k = kf_with(n);
-                k.pose = Se3::translation(0.1 * j as f64, -0.05 * j as f64, 0.02 * j as f64);
-                for (i, d) in k.descriptors.iter_mut().enumerate() {
-                    for (b, byte) in d.iter_mut().enumerate() {
-                        *byte = (i as u8).wrapping_mul(31) ^ (b as u8).wrapping_mul(j + 7);
-                    }
-                }
-                m.insert_keyframe(k)
-            })
-            .collect();
-        let points = (0..n)
-            .map(|i| {
-                let x = Vector3::new(i as f64 * 0.01 - 0.6, (i % 7) as f64 * 0.1, 2.0);
-                let p = m.create_point(x, ks[i % 5], i).unwrap();
-                for k in 1..=(i % 4 + 1) {
-                    m.add_observation(p, ks[(i + k) % 5], i);
-                }
-                m.point_mut(p).unwrap().position.z += 0.3;
-                p
-            })
-            .collect();
-        (m, points)
-    }
-
-    #[test]
-    fn refreshing_points_together_is_refreshing_them_one_by_one() {
-        for (descriptor, normal) in [(true, true), (false, true), (true, false)] {
-            let (mut one, points) = map_for_refresh();
-            let (mut all, _) = map_for_refresh();
-            for &p in &points {
-                if descriptor {
-                    one.compute_distinctive_descriptor(p);
-                }
-                if normal {
-                    one.update_normal_and_depth(p);
-                }
-            }
-            all.refresh_points(&points, descriptor, normal);
-            let (fresh, _) = map_for_refresh();
-            let mut changed = 0;
-            for &p in &points {
-                let (a, b, f) = (
-                    one.point(p).unwrap(),
-                    all.point(p).unwrap(),
-                    fresh.point(p).unwrap(),
-                );
-                assert_eq!(a.descriptor, b.descriptor);
-                assert_eq!(a.descriptor_basis, b.descriptor_basis);
-                assert_eq!(a.normal, b.normal);
-                assert_eq!(
-                    (a.min_distance, a.max_distance),
-                    (b.min_distance, b.max_distance)
-                );
-                changed += usize::from(a.descriptor != f.descriptor || a.normal != f.normal);
-            }
-            assert!(changed > 0, "the refresh must change something to compare");
-        }
     }
 
     #[test]
