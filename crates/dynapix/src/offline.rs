@@ -20,7 +20,7 @@
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
 //! write.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use dynapix_io::Trajectory;
 use serde_json::{Value, json};
@@ -43,7 +43,9 @@ pub const SLAM_PASS_VERSION: u32 = 2;
 /// Options of a run that are about files, not about the method.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
-    /// Cache of first passes and motion maps (default `<sequence>/dynapix_cache`).
+    /// Cache of first passes and motion maps (default [`default_cache_dir`]:
+    /// `<sequence>/dynapix_cache`, or a folder under the user's cache directory when the
+    /// sequence folder cannot be written).
     pub cache_dir: Option<PathBuf>,
     /// Ignore the sequence's own `prob/` folder and compute the maps.
     pub recompute_maps: bool,
@@ -55,6 +57,69 @@ pub struct RunOptions {
     /// The first pass's trajectory when the caller already has it (e.g. an ORB-SLAM2 run of
     /// the same configuration), as read from its `trajectory.txt`.
     pub first_pass: Option<Trajectory>,
+}
+
+/// The default cache of the sequence in `seq_dir`: `<seq_dir>/dynapix_cache` when it (or, before
+/// it exists, `seq_dir`) can be written, else `dynapix/<folder name>-<hash of its path>` under
+/// the user's cache directory (`$XDG_CACHE_HOME`, else `$HOME/.cache`, else the temporary
+/// directory), so read-only datasets need no `--cache`.
+pub fn default_cache_dir(seq_dir: &Path) -> PathBuf {
+    cache_dir_for(seq_dir, writable, &user_cache_root())
+}
+
+/// [`default_cache_dir`] with the writability test and the user cache root given.
+fn cache_dir_for(seq_dir: &Path, writable: impl Fn(&Path) -> bool, user_root: &Path) -> PathBuf {
+    let local = seq_dir.join("dynapix_cache");
+    let probe = if local.exists() { &local } else { seq_dir };
+    if writable(probe) {
+        return local;
+    }
+    let canonical = seq_dir
+        .canonicalize()
+        .unwrap_or_else(|_| seq_dir.to_path_buf());
+    let mut h = Fnv64::new();
+    h.write(canonical.as_os_str().as_encoded_bytes());
+    let name = canonical
+        .file_name()
+        .map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+    user_root
+        .join("dynapix")
+        .join(format!("{name}-{}", h.hex()))
+}
+
+/// The user's cache directory: `$XDG_CACHE_HOME`, else `$HOME/.cache`, else the temporary
+/// directory.
+fn user_cache_root() -> PathBuf {
+    let from = |var: &str| {
+        std::env::var_os(var)
+            .map(PathBuf::from)
+            .filter(|p| p.is_absolute())
+    };
+    from("XDG_CACHE_HOME")
+        .or_else(|| from("HOME").map(|h| h.join(".cache")))
+        .unwrap_or_else(std::env::temp_dir)
+}
+
+/// Whether this process may create files in `dir` (the effective permissions, read-only
+/// mounts included), and the folder is not marked read-only for everyone (a privileged user
+/// could write there, but the dataset says it is not to be written).
+fn writable(dir: &Path) -> bool {
+    if std::fs::metadata(dir).is_ok_and(|m| m.permissions().readonly()) {
+        return false;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let Ok(c) = std::ffi::CString::new(dir.as_os_str().as_bytes()) else {
+            return false;
+        };
+        // SAFETY: `c` is a valid NUL-terminated string that outlives the call.
+        unsafe { libc::access(c.as_ptr(), libc::W_OK) == 0 }
+    }
+    #[cfg(not(unix))]
+    {
+        dir.is_dir()
+    }
 }
 
 /// The first pass's trajectory (as its `trajectory.txt` reads back) and where it came from.
@@ -103,8 +168,19 @@ pub struct OfflineRunner<'a> {
 impl<'a> OfflineRunner<'a> {
     /// A runner for `config` on `input`; checks the configuration and the method's inputs
     /// (DynaPix+ masks).
-    pub fn new(config: &'a Config, input: &'a Input, options: RunOptions) -> Result<Self> {
+    pub fn new(config: &'a Config, input: &'a Input, mut options: RunOptions) -> Result<Self> {
         config.validate()?;
+        if options.cache_dir.is_none() {
+            let dir = default_cache_dir(&input.sequence.dir);
+            if !dir.starts_with(&input.sequence.dir) {
+                tracing::info!(
+                    "{} is not writable: caching in {}",
+                    input.sequence.dir.display(),
+                    dir.display()
+                );
+            }
+            options.cache_dir = Some(dir);
+        }
         let r = Self {
             config,
             input,
@@ -488,5 +564,58 @@ impl<'a> OfflineRunner<'a> {
             },
             "config": c.to_json_value(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cache_leaves_a_read_only_sequence_folder_alone() {
+        let tmp = tempfile::tempdir().unwrap();
+        let seq = tmp.path().join("rgbd_x");
+        std::fs::create_dir_all(&seq).unwrap();
+        let user = tmp.path().join("user-cache");
+        // Writable: inside the sequence, as before.
+        assert_eq!(
+            cache_dir_for(&seq, |_| true, &user),
+            seq.join("dynapix_cache")
+        );
+        // Not writable: under the user's cache, named after the folder, stable.
+        let a = cache_dir_for(&seq, |_| false, &user);
+        assert!(a.starts_with(user.join("dynapix")), "{}", a.display());
+        let name = a.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(name.starts_with("rgbd_x-"), "{name}");
+        assert_eq!(a, cache_dir_for(&seq, |_| false, &user));
+        // Another folder of the same name elsewhere gets another cache.
+        let other = tmp.path().join("elsewhere").join("rgbd_x");
+        std::fs::create_dir_all(&other).unwrap();
+        assert_ne!(a, cache_dir_for(&other, |_| false, &user));
+        // An existing cache folder is what is tested, not the sequence folder.
+        std::fs::create_dir_all(seq.join("dynapix_cache")).unwrap();
+        let probed = std::cell::RefCell::new(Vec::new());
+        let _ = cache_dir_for(
+            &seq,
+            |p| {
+                probed.borrow_mut().push(p.to_path_buf());
+                true
+            },
+            &user,
+        );
+        assert_eq!(*probed.borrow(), vec![seq.join("dynapix_cache")]);
+        // This process can write its own temporary folder; a folder without write bits is
+        // left alone even by a privileged user.
+        assert!(writable(tmp.path()));
+        assert!(!writable(&tmp.path().join("missing")));
+        let ro = tmp.path().join("ro");
+        std::fs::create_dir_all(&ro).unwrap();
+        let mut perm = std::fs::metadata(&ro).unwrap().permissions();
+        perm.set_readonly(true);
+        std::fs::set_permissions(&ro, perm.clone()).unwrap();
+        assert!(!writable(&ro));
+        #[allow(clippy::permissions_set_readonly_false)]
+        perm.set_readonly(false);
+        std::fs::set_permissions(&ro, perm).unwrap();
     }
 }

@@ -42,7 +42,8 @@ pub struct Args {
     #[command(flatten)]
     pub seq: SequenceArgs,
     /// Poses for splatting: `gt` (SEQ_DIR/groundtruth.txt, SLERP at frame time), `own` (the
-    /// system's own ORB-SLAM2 pass, cached in SEQ_DIR/dynapix_cache) or a TUM trajectory file.
+    /// system's own ORB-SLAM2 pass, cached in SEQ_DIR/dynapix_cache, or under the user cache
+    /// directory when SEQ_DIR is not writable) or a TUM trajectory file.
     #[arg(long, default_value = "gt", value_name = "gt|own|FILE", value_parser = parse_poses)]
     pub poses: PoseSource,
     /// Largest allowed distance (s) from a frame to the nearest pose.

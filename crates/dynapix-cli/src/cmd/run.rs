@@ -155,7 +155,7 @@ pub struct Args {
     /// default `SEQ_DIR/mask`.
     #[arg(long)]
     pub masks: Option<PathBuf>,
-    /// Motion-map and first-pass cache (default `SEQ_DIR/dynapix_cache`).
+    /// Motion-map and first-pass cache (default `SEQ_DIR/dynapix_cache`, or `dynapix/NAME-HASH` under the user cache directory when SEQ_DIR is not writable).
     #[arg(long)]
     pub cache: Option<PathBuf>,
     /// Ignore `SEQ_DIR/prob` and compute the maps into the cache.
