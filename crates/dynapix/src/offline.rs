@@ -203,12 +203,12 @@ impl<'a> OfflineRunner<'a> {
         self.config
     }
 
-    /// The cache folder.
+    /// The cache folder (resolved by [`OfflineRunner::new`]).
     pub fn cache_dir(&self) -> PathBuf {
         self.options
             .cache_dir
             .clone()
-            .unwrap_or_else(|| self.input.sequence.dir.join("dynapix_cache"))
+            .unwrap_or_else(|| default_cache_dir(&self.input.sequence.dir))
     }
 
     /// The DynaPix+ mask folder.
