@@ -269,15 +269,19 @@ pub fn bench_online(
     let mut feed = || -> Result<(Vec<f64>, Vec<crate::online::FrameResult>)> {
         let mut latency = Vec::with_capacity(input.len());
         let mut results = Vec::with_capacity(input.len());
-        // Frames are decoded on a reader thread, as a camera driver delivers them.
-        input.stream(
+        // Frames are decoded on a reader thread, as a camera driver delivers them; a frame
+        // already delivered is shown to the push before it (`push_before`).
+        input.stream_with_next(
             FRAMES_AHEAD,
-            |i| input.load_rgbd(i),
-            |i, images| -> Result<()> {
-                let (rgb, depth) = images?;
-                let t = input.sequence.frames[i].t;
+            |i| {
+                input
+                    .load_rgbd(i)
+                    .map(|(rgb, depth)| RgbdFrame::new(input.sequence.frames[i].t, rgb, depth))
+            },
+            |_, frame, next| -> Result<()> {
+                let frame = frame?;
                 let started = Instant::now();
-                let r = online.push(RgbdFrame::new(t, rgb, depth))?;
+                let r = online.push_before(frame, next.and_then(|n| n.as_ref().ok()))?;
                 latency.push(started.elapsed().as_secs_f64() * 1e3);
                 results.extend(r);
                 task.step("");

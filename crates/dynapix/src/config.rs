@@ -383,6 +383,14 @@ pub struct OnlineConfig {
     /// "Online: mapping beside the motion map, and a cheaper rigidity flow measured"). Keys
     /// left out of a value given in a file take the medium preset's values.
     pub rigidity_flow: Option<DisParams>,
+    /// When the next frame has already arrived (frames read from files, a camera faster than
+    /// the system, or a frame waiting in the lookahead), compute its rigidity cue beside the
+    /// feature extraction and tracking of the current frame instead of in its own push
+    /// (true). The poses are the same either way (the early cue is used only for the same
+    /// frame with the same neighbours); on the 2-core machine it raised DynaPix online at
+    /// 640×480 from 14.0–14.4 to 15.6–16.0 frames/s (BENCHMARKS.md, "Online: the next frame's
+    /// rigidity cue beside tracking").
+    pub rigidity_ahead: bool,
 }
 
 impl Default for OnlineConfig {
@@ -396,6 +404,7 @@ impl Default for OnlineConfig {
             past_offsets: vec![-2, -1],
             rigidity_flow_working_width: 0,
             rigidity_flow: None,
+            rigidity_ahead: true,
         }
     }
 }

@@ -416,6 +416,43 @@ impl Input {
         })
     }
 
+    /// [`Input::stream`] that also shows `consume` the next frame's item when the reader has
+    /// already delivered it (`None` when it has not, or at the end): never waits for it, so
+    /// a consumer that uses it to start on the next frame early (e.g.
+    /// [`crate::OnlineDynaPix::push_before`]) adds no latency.
+    pub fn stream_with_next<T: Send, E>(
+        &self,
+        ahead: usize,
+        mut load: impl FnMut(usize) -> T + Send,
+        mut consume: impl FnMut(usize, T, Option<&T>) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
+        let n = self.len();
+        std::thread::scope(|scope| {
+            let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, T)>(ahead.max(1));
+            scope.spawn(move || {
+                for i in 0..n {
+                    if tx.send((i, load(i))).is_err() {
+                        break;
+                    }
+                }
+            });
+            let mut held: Option<(usize, T)> = None;
+            loop {
+                let (i, item) = match held.take() {
+                    Some(x) => x,
+                    None => match rx.recv() {
+                        Ok(x) => x,
+                        Err(_) => break,
+                    },
+                };
+                let next = rx.try_recv().ok();
+                consume(i, item, next.as_ref().map(|(_, t)| t))?;
+                held = next;
+            }
+            Ok(())
+        })
+    }
+
     /// The colour image and depth (metres) of frame `i`. A file that cannot be used
     /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
     /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.

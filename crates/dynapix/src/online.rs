@@ -26,7 +26,12 @@
 //! - the local mapping and loop closing of the keyframe made from the frame before m run
 //!   while m's motion map is computed (with m's FAST corners), and the system tracks m only
 //!   after them: the same results as mapping each keyframe at once
-//!   ([`dynapix_slam::system::System::track_features`]).
+//!   ([`dynapix_slam::system::System::track_features`]);
+//! - when the next frame has already arrived (waiting in the lookahead, or shown by the caller
+//!   with [`OnlineDynaPix::push_before`]), its rigidity cue, which needs images but no pose,
+//!   is computed while m's features are extracted and m is tracked, and used by the next
+//!   push if the frame and its neighbours are the same (`online.rigidity_ahead`; the same
+//!   results either way).
 //!
 //! Memory is bounded by the window (`online.window` frames with their backgrounds, plus
 //! `online.background_keyframes` keyframe images and the `lookahead` frames waiting), not by
@@ -107,6 +112,12 @@ pub struct FrameResult {
     /// Milliseconds of the local mapping and loop closing of the previous frame's keyframe,
     /// which ran during this push beside the motion map (0 when it made none).
     pub mapping_ms: f64,
+    /// The frame's rigidity cue was computed during the push before, beside the tracking of
+    /// the frame before it (see [`OnlineDynaPix::push_before`]).
+    pub rigidity_ahead: bool,
+    /// Milliseconds of the next frame's rigidity cue, computed beside this frame's tracking
+    /// (0 when the next frame had not arrived).
+    pub next_rigidity_ms: f64,
 }
 
 /// The motion map of one frame and what the window keeps of it.
@@ -171,6 +182,53 @@ struct Core {
     /// `T_cw` of the two latest tracked frames (older first) for the motion model.
     last_tracked: VecDeque<(usize, Se3)>,
     next_index: usize,
+    /// The rigidity cue of the next frame, computed beside the tracking of the frame before.
+    ahead: Option<Ahead>,
+}
+
+/// The rigidity cue of a frame computed one push early ([`OnlineDynaPix::push_before`]). It
+/// is used only for the same frame with the same neighbours, so it equals the cue computed
+/// at the frame's own push.
+struct Ahead {
+    /// Push index of the frame.
+    index: usize,
+    /// The neighbour offsets it used.
+    offsets: Vec<i64>,
+    /// A copy of the frame when the caller showed it before pushing it (checked against the
+    /// frame pushed); `None` when it was waiting in the lookahead.
+    shown: Option<(f64, RgbImage, DepthImage)>,
+    /// The cue.
+    map: FloatImage,
+}
+
+/// A neighbour of the rigidity cue and where its images are.
+enum RigidSource<'a> {
+    /// A processed frame (window) or the frame in flight: grey image and images.
+    Seen(Arc<GrayImage>, &'a RgbdImages),
+    /// A frame waiting in the lookahead (its grey image is made when needed).
+    Waiting(&'a RgbdFrame),
+}
+
+/// The frame being tracked while the next frame's rigidity cue is computed: not yet in the
+/// window, but a past neighbour of the next frame.
+#[derive(Clone, Copy)]
+struct InFlight<'a> {
+    index: usize,
+    gray: &'a Arc<GrayImage>,
+    images: &'a RgbdImages,
+}
+
+/// True when two frames have the same time and the same pixels (depth compared bit for bit).
+fn same_frame(shown: &(f64, RgbImage, DepthImage), frame: &RgbdFrame) -> bool {
+    shown.0.to_bits() == frame.t.to_bits()
+        && shown.1 == frame.rgb
+        && shown.2.dimensions() == frame.depth.dimensions()
+        && shown
+            .2
+            .as_raw()
+            .iter()
+            .zip(frame.depth.as_raw())
+            .all(|(a, b)| a.to_bits() == b.to_bits())
 }
 
 /// The rigidity cue's flow online, for images `width` pixels wide: `online.rigidity_flow`
@@ -237,6 +295,7 @@ impl OnlineDynaPix {
                 keyframes: VecDeque::new(),
                 last_tracked: VecDeque::new(),
                 next_index: 0,
+                ahead: None,
             },
         })
     }
@@ -265,6 +324,24 @@ impl OnlineDynaPix {
     /// newest frame itself without lookahead), or `None` while the first frames fill the
     /// lookahead.
     pub fn push(&mut self, frame: RgbdFrame) -> Result<Option<FrameResult>> {
+        self.push_before(frame, None)
+    }
+
+    /// [`OnlineDynaPix::push`] when `next`, the frame that will be pushed after `frame`, has
+    /// already arrived (a camera delivering faster than the system runs, or frames read from
+    /// files). The part of `next`'s motion map that needs no pose, its rigidity cue (flows to
+    /// its neighbours, rigid fits, residuals), is then computed beside the feature extraction
+    /// and tracking of `frame`, and the push of `next` uses it instead of computing it again.
+    /// The results are exactly those of [`OnlineDynaPix::push`]: the early cue is used only
+    /// when the frame pushed next has the same time and pixels as `next` and the same
+    /// neighbours are available, and is computed again otherwise. With a lookahead the frame
+    /// after the processed one is already waiting and `push` does this by itself; `next` is
+    /// used only when no frame is waiting. Off with `online.rigidity_ahead: false`.
+    pub fn push_before(
+        &mut self,
+        frame: RgbdFrame,
+        next: Option<&RgbdFrame>,
+    ) -> Result<Option<FrameResult>> {
         let core = &mut self.core;
         let size = (core.cam.width, core.cam.height);
         for (what, got) in [
@@ -291,7 +368,7 @@ impl OnlineDynaPix {
         if core.pending.len() <= core.lookahead() {
             return Ok(None);
         }
-        self.process_oldest().map(Some)
+        self.process_oldest(next).map(Some)
     }
 
     /// Processes the frames still waiting for their lookahead (end of the stream) and the
@@ -299,17 +376,21 @@ impl OnlineDynaPix {
     pub fn finish(&mut self) -> Result<Vec<FrameResult>> {
         let mut out = Vec::with_capacity(self.core.pending.len());
         while !self.core.pending.is_empty() {
-            out.push(self.process_oldest()?);
+            out.push(self.process_oldest(None)?);
         }
         self.system.map_pending();
         Ok(out)
     }
 
-    fn process_oldest(&mut self) -> Result<FrameResult> {
+    /// Processes the oldest waiting frame; `next` is the frame to be pushed after it when the
+    /// caller has it already (see [`OnlineDynaPix::push_before`]).
+    fn process_oldest(&mut self, next: Option<&RgbdFrame>) -> Result<FrameResult> {
         let Some((index, frame)) = self.core.pending.pop_front() else {
             return Err(Error::Input("no frame to process".into()));
         };
         let latency_frames = self.core.pending.len();
+        let early_rigidity = self.core.take_ahead(index, &frame);
+        let rigidity_ahead = early_rigidity.is_some();
         let t0 = Instant::now();
         let images = Arc::new(RgbdImages {
             rgb: frame.rgb,
@@ -329,28 +410,57 @@ impl OnlineDynaPix {
                     },
                 )
             },
-            || core.weights(index, &images),
+            || core.weights(index, &images, early_rigidity),
         );
         let motion = motion?;
         let motion_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let t1 = Instant::now();
-        let feats = self
-            .features
-            .extract_cached(&orb_gray, motion.weights.as_ref(), &mut corners);
-        let res = self.system.track_features(
-            FrameInput {
-                timestamp: frame.t,
-                gray: &orb_gray,
-                depth: &images.depth,
-                weights: motion.weights.as_ref(),
-                masks: frame.mask.as_ref(),
+        // The frame's features and tracking, beside the rigidity cue of the next frame when it
+        // has arrived (it needs no pose, only images).
+        let (system, features, core) = (&mut self.system, &mut self.features, &self.core);
+        let upcoming = match core.pending.front() {
+            Some((j, f)) if *j == index + 1 => Some((f, false)),
+            Some(_) => None,
+            None => next.map(|f| (f, true)),
+        };
+        let in_flight = motion.gray.as_ref().map(|gray| InFlight {
+            index,
+            gray,
+            images: &images,
+        });
+        let (tracked, ahead) = rayon::join(
+            || {
+                let t1 = Instant::now();
+                let feats =
+                    features.extract_cached(&orb_gray, motion.weights.as_ref(), &mut corners);
+                let res = system.track_features(
+                    FrameInput {
+                        timestamp: frame.t,
+                        gray: &orb_gray,
+                        depth: &images.depth,
+                        weights: motion.weights.as_ref(),
+                        masks: frame.mask.as_ref(),
+                    },
+                    feats,
+                );
+                (res, t1.elapsed().as_secs_f64() * 1e3)
             },
-            feats,
-        )?;
-        let slam_ms = t1.elapsed().as_secs_f64() * 1e3;
+            || {
+                let t = Instant::now();
+                let ahead = match (upcoming, in_flight) {
+                    (Some((f, shown)), Some(fl)) => core.rigidity_ahead(index + 1, f, shown, fl),
+                    _ => None,
+                };
+                (ahead, t.elapsed().as_secs_f64() * 1e3)
+            },
+        );
+        let (res, slam_ms) = tracked;
+        let res = res?;
+        let (ahead, ahead_ms) = ahead;
+        let next_rigidity_ms = if ahead.is_some() { ahead_ms } else { 0.0 };
         let status = frame_status(res.state);
         let tracked_cw = res.pose_cw.filter(|_| status == FrameStatus::Tracked);
         let core = &mut self.core;
+        core.ahead = ahead;
         if let Some(cw) = tracked_cw {
             core.last_tracked.push_back((index, cw));
             while core.last_tracked.len() > 2 {
@@ -379,6 +489,8 @@ impl OnlineDynaPix {
             background_ms: motion.background_ms,
             slam_ms,
             mapping_ms: mapped.map_or(0.0, |m| (m.mapping_seconds + m.loop_closing_seconds) * 1e3),
+            rigidity_ahead,
+            next_rigidity_ms,
         })
     }
 }
@@ -461,7 +573,14 @@ impl Core {
 
     /// The motion map of frame `index` (images `images`) as static weights, with what the
     /// window keeps of it.
-    fn weights(&self, index: usize, images: &RgbdImages) -> Result<FrameMotion> {
+    /// `early_rigidity`: the frame's rigidity cue computed during the push before
+    /// ([`Core::take_ahead`]), used instead of computing it.
+    fn weights(
+        &self,
+        index: usize,
+        images: &RgbdImages,
+        early_rigidity: Option<FloatImage>,
+    ) -> Result<FrameMotion> {
         let t0 = Instant::now();
         let t_wc = self.predict_cw(index).inverse();
         let mut background_ms = 0.0;
@@ -491,10 +610,12 @@ impl Core {
                 }
                 // The two cues are independent: compute them side by side, combine in order.
                 let (rigid, geometric) = rayon::join(
-                    || {
-                        gray.as_ref()
+                    || match early_rigidity {
+                        Some(r) if gray.is_some() => Ok(Some(r)),
+                        _ => gray
+                            .as_ref()
                             .map(|g| self.rigidity(index, g, &images.depth))
-                            .transpose()
+                            .transpose(),
                     },
                     || {
                         working
@@ -570,35 +691,75 @@ impl Core {
     /// The rigidity cue of frame `index` against the neighbours of `motion.rigidity.offsets`
     /// it has seen: past frames of the window, frames waiting in the lookahead.
     fn rigidity(&self, index: usize, gray: &GrayImage, depth: &FloatImage) -> Result<FloatImage> {
-        let mut owned: Vec<(i64, Arc<GrayImage>, Arc<RgbdImages>)> = Vec::new();
-        let mut waiting: Vec<(i64, GrayImage, &DepthImage)> = Vec::new();
+        let sources = self.rigidity_sources(index, None);
+        self.rigidity_from(gray, depth, &sources)
+    }
+
+    /// The neighbours of frame `index`'s rigidity cue that the system has, in the order the
+    /// cue combines them (past frames, then waiting frames, each in the order of
+    /// `motion.rigidity.offsets`): frames of the window, `in_flight` (the frame being
+    /// tracked, not yet in the window) and frames waiting in the lookahead.
+    fn rigidity_sources<'a>(
+        &'a self,
+        index: usize,
+        in_flight: Option<InFlight<'a>>,
+    ) -> Vec<(i64, RigidSource<'a>)> {
+        let mut seen = Vec::new();
+        let mut waiting = Vec::new();
         for &o in &self.config.motion.rigidity.offsets {
             let Some(j) = index.checked_add_signed(o as isize) else {
                 continue;
             };
             if o < 0 {
-                if let Some(p) = self.window.iter().find(|p| p.index == j)
+                if let Some(fl) = in_flight.filter(|fl| fl.index == j) {
+                    seen.push((o, RigidSource::Seen(fl.gray.clone(), fl.images)));
+                } else if let Some(p) = self.window.iter().find(|p| p.index == j)
                     && let Some(g) = &p.gray
                 {
-                    owned.push((o, g.clone(), p.images.clone()));
+                    seen.push((o, RigidSource::Seen(g.clone(), &*p.images)));
                 }
             } else if let Some((_, f)) = self.pending.iter().find(|(k, _)| *k == j) {
-                waiting.push((o, to_gray(&f.rgb), &f.depth));
+                waiting.push((o, RigidSource::Waiting(f)));
             }
         }
-        let mut nbs: Vec<RigidFrame<'_>> = owned
+        seen.extend(waiting);
+        seen
+    }
+
+    /// The rigidity cue of a frame (`gray`, `depth`) against `sources`.
+    fn rigidity_from(
+        &self,
+        gray: &GrayImage,
+        depth: &FloatImage,
+        sources: &[(i64, RigidSource<'_>)],
+    ) -> Result<FloatImage> {
+        let waiting_grays: Vec<GrayImage> = sources
             .iter()
-            .map(|(o, g, img)| RigidFrame {
-                gray: g,
-                depth: &img.depth,
-                offset: *o,
+            .filter_map(|(_, s)| match s {
+                RigidSource::Waiting(f) => Some(to_gray(&f.rgb)),
+                RigidSource::Seen(..) => None,
             })
             .collect();
-        nbs.extend(waiting.iter().map(|(o, g, d)| RigidFrame {
-            gray: g,
-            depth: d,
-            offset: *o,
-        }));
+        let mut next_gray = waiting_grays.iter();
+        let mut nbs: Vec<RigidFrame<'_>> = Vec::with_capacity(sources.len());
+        for (o, s) in sources {
+            match s {
+                RigidSource::Seen(gray, images) => nbs.push(RigidFrame {
+                    gray,
+                    depth: &images.depth,
+                    offset: *o,
+                }),
+                RigidSource::Waiting(f) => {
+                    if let Some(gray) = next_gray.next() {
+                        nbs.push(RigidFrame {
+                            gray,
+                            depth: &f.depth,
+                            offset: *o,
+                        });
+                    }
+                }
+            }
+        }
         if nbs.is_empty() {
             return Ok(FloatImage::new(self.cam.width, self.cam.height));
         }
@@ -615,6 +776,51 @@ impl Core {
             &self.config.motion.rigidity,
         )?;
         Ok(maps.p)
+    }
+
+    /// The rigidity cue of `frame`, to be pushed as frame `index` after the frame in flight,
+    /// computed now; `shown`: the caller showed it before pushing it (a copy is kept to check
+    /// the frame pushed). `None` when the method has no rigidity cue, or on any error (the
+    /// frame's own push computes the cue again and reports it).
+    fn rigidity_ahead(
+        &self,
+        index: usize,
+        frame: &RgbdFrame,
+        shown: bool,
+        in_flight: InFlight<'_>,
+    ) -> Option<Ahead> {
+        if !(self.config.online.rigidity_ahead && self.cues.is_some_and(|c| c.rigidity)) {
+            return None;
+        }
+        let size = (self.cam.width, self.cam.height);
+        if frame.rgb.dimensions() != size || frame.depth.dimensions() != size {
+            return None;
+        }
+        let sources = self.rigidity_sources(index, Some(in_flight));
+        let offsets = sources.iter().map(|(o, _)| *o).collect();
+        let gray = to_gray(&frame.rgb);
+        let map = self.rigidity_from(&gray, &frame.depth, &sources).ok()?;
+        Some(Ahead {
+            index,
+            offsets,
+            shown: shown.then(|| (frame.t, frame.rgb.clone(), frame.depth.clone())),
+            map,
+        })
+    }
+
+    /// The rigidity cue of frame `index` (`frame`) computed during the push before, if it
+    /// was computed for this frame with the neighbours it has now; cleared either way.
+    fn take_ahead(&mut self, index: usize, frame: &RgbdFrame) -> Option<FloatImage> {
+        let ahead = self.ahead.take()?;
+        if ahead.index != index || ahead.shown.as_ref().is_some_and(|s| !same_frame(s, frame)) {
+            return None;
+        }
+        let now: Vec<i64> = self
+            .rigidity_sources(index, None)
+            .iter()
+            .map(|(o, _)| *o)
+            .collect();
+        (now == ahead.offsets).then_some(ahead.map)
     }
 
     /// The geometric cue of frame `index` (working depth `cur`, predicted pose `t_wc`): the

@@ -176,6 +176,64 @@ fn streamed_frames_come_in_order_and_an_error_stops_the_stream() {
 }
 
 #[test]
+fn a_stream_shows_the_next_frame_only_when_it_has_arrived() {
+    let seq = sequence();
+    let input = open(seq, &Config::default());
+    let n = input.len();
+    // A slow consumer: the reader is ahead, so the next frame is almost always shown, and
+    // whenever it is, it is the frame consumed next.
+    let mut seen = Vec::new();
+    let mut shown: Vec<Option<usize>> = Vec::new();
+    input
+        .stream_with_next(
+            2,
+            |i| i,
+            |i, item, next| -> Result<(), String> {
+                assert_eq!(i, item);
+                std::thread::sleep(std::time::Duration::from_millis(2));
+                seen.push(i);
+                shown.push(next.copied());
+                Ok(())
+            },
+        )
+        .unwrap();
+    assert_eq!(seen, (0..n).collect::<Vec<_>>());
+    for (i, s) in shown.iter().enumerate() {
+        if let Some(j) = s {
+            assert_eq!(*j, i + 1, "frame {i} was shown {j} as the next frame");
+        }
+    }
+    assert_eq!(shown[n - 1], None, "nothing after the last frame");
+    let known = shown.iter().filter(|s| s.is_some()).count();
+    assert!(known + 5 >= n, "next frame shown for {known} of {n}");
+    // A slow reader: the consumer never waits for the next frame, it goes on without it.
+    let mut shown = Vec::new();
+    input
+        .stream_with_next(
+            2,
+            |i| {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+                i
+            },
+            |_, _, next| -> Result<(), String> {
+                shown.push(next.is_some());
+                Ok(())
+            },
+        )
+        .unwrap();
+    assert_eq!(shown.len(), n);
+    assert!(
+        shown.iter().filter(|&&s| s).count() * 2 < n,
+        "a consumer faster than its reader is mostly shown no next frame"
+    );
+    // The consumer's first error stops the stream.
+    let err = input
+        .stream_with_next(2, |i| i, |i, _, _| if i == 5 { Err(i) } else { Ok(()) })
+        .unwrap_err();
+    assert_eq!(err, 5);
+}
+
+#[test]
 fn fast_corners_are_kept_for_later_passes_only_during_a_run() {
     let seq = sequence();
     let config = Config::default();
@@ -361,6 +419,79 @@ fn online_mode_keeps_a_real_gain() {
         a_dpx < 0.6 * a_orb,
         "online dynapix {a_dpx} vs orbslam2 {a_orb}"
     );
+}
+
+/// How [`rigidity_ahead_changes_no_pose`] feeds the frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Feed {
+    /// `push` only.
+    Plain,
+    /// `push_before` showing the frame pushed next.
+    ShowNext,
+    /// `push_before` showing the frame after the next one: never the frame pushed next.
+    ShowWrong,
+}
+
+#[test]
+fn rigidity_ahead_changes_no_pose() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = camera_only(tmp.path());
+    let run = |config: &Config, feed: Feed| -> (Vec<Option<dynapix_geometry::Se3>>, usize) {
+        let input = open(&seq, config);
+        let frames: Vec<RgbdFrame> = (0..40.min(input.len()))
+            .map(|i| {
+                let (rgb, depth) = input.load_rgbd(i).unwrap();
+                RgbdFrame::new(input.sequence.frames[i].t, rgb, depth)
+            })
+            .collect();
+        let mut online = OnlineDynaPix::new(&input.camera, config).unwrap();
+        let mut results = Vec::new();
+        for (i, f) in frames.iter().enumerate() {
+            let shown = match feed {
+                Feed::Plain => None,
+                Feed::ShowNext => frames.get(i + 1),
+                Feed::ShowWrong => frames.get(i + 2),
+            };
+            results.extend(online.push_before(f.clone(), shown).unwrap());
+        }
+        results.extend(online.finish().unwrap());
+        assert_eq!(results.len(), frames.len());
+        let early = results.iter().filter(|r| r.rigidity_ahead).count();
+        if early > 0 {
+            assert!(results.iter().any(|r| r.next_rigidity_ms > 0.0));
+        }
+        (results.iter().map(|r| r.pose_wc).collect(), early)
+    };
+    let mut off = Config::default();
+    off.online.rigidity_ahead = false;
+    for lookahead in [0, 2, 4] {
+        let mut on = Config::default();
+        on.online.lookahead = lookahead;
+        off.online.lookahead = lookahead;
+        let (reference, none) = run(&off, Feed::ShowNext);
+        assert_eq!(none, 0, "switched off, no cue is computed early");
+        for feed in [Feed::Plain, Feed::ShowNext, Feed::ShowWrong] {
+            let (poses, early) = run(&on, feed);
+            assert_eq!(
+                poses, reference,
+                "lookahead {lookahead}, {feed:?}: the early cue changes no pose"
+            );
+            // Used for every frame but the first when the next frame is known and has the
+            // same neighbours one push later. With lookahead 4 the next frame's furthest
+            // future neighbour (+4) arrives only with its own push, so the early cue is
+            // recomputed, except for the last frames (no frame arrives after them).
+            match (lookahead, feed) {
+                (0, Feed::ShowNext) | (2, _) => {
+                    assert!(
+                        early >= 35,
+                        "lookahead {lookahead}, {feed:?}: {early} of 40"
+                    )
+                }
+                (4, _) => assert!(early <= 4, "lookahead 4, {feed:?}: {early}"),
+                _ => assert_eq!(early, 0, "lookahead {lookahead}, {feed:?}"),
+            }
+        }
+    }
 }
 
 #[test]

@@ -525,10 +525,13 @@ fn online_into(
         })();
         (images, t0.elapsed().as_secs_f64() * 1e3)
     };
-    let streamed = input.stream(2, load, |_, (images, ms)| -> anyhow::Result<()> {
+    // A frame the reader has already delivered is shown to the push before it, which starts
+    // on its rigidity cue early (`push_before`; the same results).
+    let streamed = input.stream_with_next(2, load, |_, (images, ms), next| -> anyhow::Result<()> {
         load_ms += ms;
+        let next = next.and_then(|(n, _)| n.as_ref().ok());
         let pushed = match images {
-            Ok(frame) => online.push(frame).map_err(anyhow::Error::from),
+            Ok(frame) => online.push_before(frame, next).map_err(anyhow::Error::from),
             Err(dynapix::Error::Frame(bad)) if input.skip_bad_frames => {
                 tracing::warn!("skipped {bad}");
                 skipped.push(bad);
@@ -589,6 +592,8 @@ fn online_into(
         "slam_ms": per(&|r| r.slam_ms),
         "mapping_ms": per(&|r| r.mapping_ms),
         "frame_ms": per(&|r| r.motion_ms + r.slam_ms),
+        "next_rigidity_ms": per(&|r| r.next_rigidity_ms),
+        "rigidity_ahead_frames": results.iter().filter(|r| r.rigidity_ahead).count(),
         "image_loading_ms_mean": load_ms / n.max(1) as f64,
         "wall_seconds": wall,
     });
