@@ -716,7 +716,7 @@ impl Core {
                 } else if let Some(p) = self.window.iter().find(|p| p.index == j)
                     && let Some(g) = &p.gray
                 {
-                    seen.push((o, RigidSource::Seen(g.clone(), &*p.images)));
+                    seen.push((o, RigidSource::Seen(g.clone(), &p.images)));
                 }
             } else if let Some((_, f)) = self.pending.iter().find(|(k, _)| *k == j) {
                 waiting.push((o, RigidSource::Waiting(f)));
