@@ -570,24 +570,55 @@ impl<E: FeatureExtractor> System<E> {
     /// [`System::track_features`], if any, and reports them.
     pub fn map_pending(&mut self) -> Option<MappingOutcome> {
         let (index, kf) = self.pending.take()?;
+        if rayon::current_thread_index().is_none() {
+            // Called from outside the thread pool (e.g. the main thread of an offline pass):
+            // run the mapping on a worker. Its parallel loops (local BA: four per iteration)
+            // then split work from that worker's own queue instead of handing every loop to
+            // the pool and sleeping until it is done, a wake-up across threads each time. The
+            // loops' results do not depend on the thread that runs them.
+            let (map, mapper, closer, vocab) =
+                (&mut self.map, &mut self.mapper, &mut self.closer, self.vocab.as_ref());
+            return Some(rayon::scope(|_| {
+                Self::map_keyframe(map, mapper, closer, vocab, index, kf)
+            }));
+        }
+        Some(Self::map_keyframe(
+            &mut self.map,
+            &mut self.mapper,
+            &mut self.closer,
+            self.vocab.as_ref(),
+            index,
+            kf,
+        ))
+    }
+
+    /// The local mapping and loop closing of keyframe `kf` (made from frame `index`).
+    fn map_keyframe(
+        map: &mut Map,
+        mapper: &mut LocalMapper,
+        closer: &mut LoopCloser,
+        vocab: Option<&Vocabulary>,
+        index: u64,
+        kf: KeyFrameId,
+    ) -> MappingOutcome {
         let t0 = Instant::now();
         let mapping = {
             let _stage = tracing::info_span!(target: "dynapix::stage", "local mapping").entered();
-            self.mapper.process(&mut self.map, kf, self.vocab.as_ref())
+            mapper.process(map, kf, vocab)
         };
         let t1 = Instant::now();
         let mut loop_closure = None;
-        if self.map.keyframe(kf).is_some() {
+        if map.keyframe(kf).is_some() {
             let _stage = tracing::info_span!(target: "dynapix::stage", "loop closing").entered();
-            loop_closure = self.closer.step(&mut self.map, kf, self.vocab.as_ref());
+            loop_closure = closer.step(map, kf, vocab);
         }
-        Some(MappingOutcome {
+        MappingOutcome {
             index,
             mapping,
             loop_closure,
             mapping_seconds: (t1 - t0).as_secs_f64(),
             loop_closing_seconds: t1.elapsed().as_secs_f64(),
-        })
+        }
     }
 
     /// Tracking, local mapping and loop closing of a checked frame with its features.
