@@ -145,6 +145,10 @@ fn bench(c: &mut Criterion) {
     g.bench_function("static_depth_24_views", |b| {
         b.iter(|| static_depth(&dcam, &views, &sdp).unwrap())
     });
+    // The same views through a pinhole camera (synthetic sequences, rectified cameras).
+    g.bench_function("static_depth_24_views_pinhole", |b| {
+        b.iter(|| static_depth(&cam, &views, &sdp).unwrap())
+    });
     let sd = static_depth(&dcam, &views, &sdp).unwrap();
     g.bench_function("geometric_term", |b| {
         b.iter(|| geometric_term(&working[c0], &sd, &sdp).unwrap())

@@ -217,7 +217,24 @@ fn splat_nearest(
         unsafe { splat_nearest_avx2(cam, table, rays, view, out) };
         return;
     }
-    splat_nearest_blocks(cam, table, rays, view, out);
+    splat_nearest_any(cam, table, rays, view, out);
+}
+
+/// [`splat_nearest_blocks`] for the camera at hand: the lens model is a compile-time choice,
+/// so a pinhole camera's loop carries no distortion arithmetic.
+#[inline(always)]
+fn splat_nearest_any(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
+    if table.is_some() {
+        splat_nearest_blocks::<true>(cam, table, rays, view, out);
+    } else {
+        splat_nearest_blocks::<false>(cam, table, rays, view, out);
+    }
 }
 
 /// [`splat_nearest_blocks`] compiled for AVX2 (4 lanes of `f64`). No FMA: the rounding is
@@ -231,14 +248,14 @@ fn splat_nearest_avx2(
     view: &DepthView<'_>,
     out: &mut [f32],
 ) {
-    splat_nearest_blocks(cam, table, rays, view, out);
+    splat_nearest_any(cam, table, rays, view, out);
 }
 
 /// Points per block of [`splat_nearest_blocks`].
 const SPLAT_BLOCK: usize = 512;
 
 #[inline(always)]
-fn splat_nearest_blocks(
+fn splat_nearest_blocks<const DISTORTED: bool>(
     cam: &PinholeCamera,
     table: Option<&dynapix_geometry::camera::PixelRays>,
     rays: &Rays,
@@ -260,7 +277,7 @@ fn splat_nearest_blocks(
         None => ([0.0; 5], 0.0),
     };
     let [k1, k2, p1, p2, k3] = dist;
-    let distorted = table.is_some();
+    let distorted = DISTORTED;
     let mut idx = [0u32; SPLAT_BLOCK];
     let mut zs = [0f32; SPLAT_BLOCK];
     for (dc, rc) in d.chunks(SPLAT_BLOCK).zip(rays.rays.chunks(SPLAT_BLOCK)) {
@@ -868,7 +885,7 @@ mod tests {
                         "{w}x{h} distorted {distorted} working width {working_width}"
                     );
                     let mut c2 = vec![f32::INFINITY; n];
-                    splat_nearest_blocks(&c, table.as_deref(), &rays, &view, &mut c2);
+                    splat_nearest_any(&c, table.as_deref(), &rays, &view, &mut c2);
                     assert!(c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
                 }
             }

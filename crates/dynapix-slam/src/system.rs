@@ -576,8 +576,12 @@ impl<E: FeatureExtractor> System<E> {
             // then split work from that worker's own queue instead of handing every loop to
             // the pool and sleeping until it is done, a wake-up across threads each time. The
             // loops' results do not depend on the thread that runs them.
-            let (map, mapper, closer, vocab) =
-                (&mut self.map, &mut self.mapper, &mut self.closer, self.vocab.as_ref());
+            let (map, mapper, closer, vocab) = (
+                &mut self.map,
+                &mut self.mapper,
+                &mut self.closer,
+                self.vocab.as_ref(),
+            );
             return Some(rayon::scope(|_| {
                 Self::map_keyframe(map, mapper, closer, vocab, index, kf)
             }));
