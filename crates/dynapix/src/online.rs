@@ -103,6 +103,8 @@ pub struct FrameResult {
     pub mean_probability: f32,
     /// Milliseconds spent on the motion map (background, flows, splats), `background_ms`
     /// included; the previous keyframe's mapping and this frame's FAST corners run beside it.
+    /// Without the rigidity cue when that was computed during the push before
+    /// ([`FrameResult::rigidity_ahead`]).
     pub motion_ms: f64,
     /// Milliseconds spent reconstructing the frame's background.
     pub background_ms: f64,
