@@ -396,24 +396,10 @@ impl Input {
     pub fn stream<T: Send, E>(
         &self,
         ahead: usize,
-        mut load: impl FnMut(usize) -> T + Send,
+        load: impl FnMut(usize) -> T + Send,
         mut consume: impl FnMut(usize, T) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
-        let n = self.len();
-        std::thread::scope(|scope| {
-            let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, T)>(ahead.max(1));
-            scope.spawn(move || {
-                for i in 0..n {
-                    if tx.send((i, load(i))).is_err() {
-                        break;
-                    }
-                }
-            });
-            for (i, item) in rx {
-                consume(i, item)?;
-            }
-            Ok(())
-        })
+        self.stream_inner(ahead, load, false, |i, item, _| consume(i, item))
     }
 
     /// [`Input::stream`] that also shows `consume` the next frame's item when the reader has
@@ -423,7 +409,19 @@ impl Input {
     pub fn stream_with_next<T: Send, E>(
         &self,
         ahead: usize,
+        load: impl FnMut(usize) -> T + Send,
+        consume: impl FnMut(usize, T, Option<&T>) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
+        self.stream_inner(ahead, load, true, consume)
+    }
+
+    /// The reader thread and the consuming loop of [`Input::stream`] and
+    /// [`Input::stream_with_next`]; `peek`: take the next item if it has arrived.
+    fn stream_inner<T: Send, E>(
+        &self,
+        ahead: usize,
         mut load: impl FnMut(usize) -> T + Send,
+        peek: bool,
         mut consume: impl FnMut(usize, T, Option<&T>) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
         let n = self.len();
@@ -445,7 +443,7 @@ impl Input {
                         Err(_) => break,
                     },
                 };
-                let next = rx.try_recv().ok();
+                let next = if peek { rx.try_recv().ok() } else { None };
                 consume(i, item, next.as_ref().map(|(_, t)| t))?;
                 held = next;
             }
