@@ -132,9 +132,9 @@ pub fn read_depth_raw(path: impl AsRef<Path>) -> Result<Gray16Image> {
 /// (TUM: factor 5000, GRADE: 1000). 0 stays 0 (no depth).
 pub fn depth_to_metres(raw: &Gray16Image, depth_factor: f64) -> DepthImage {
     let scale = 1.0f32 / depth_factor as f32;
-    ImageBuffer::from_fn(raw.width(), raw.height(), |x, y| {
-        Luma([raw.get_pixel(x, y)[0] as f32 * scale])
-    })
+    let metres: Vec<f32> = raw.as_raw().iter().map(|&v| v as f32 * scale).collect();
+    ImageBuffer::from_raw(raw.width(), raw.height(), metres)
+        .unwrap_or_else(|| ImageBuffer::new(raw.width(), raw.height()))
 }
 
 /// Reads a 16-bit depth PNG and converts it to metres (see [`depth_to_metres`]).
@@ -474,6 +474,20 @@ mod tests {
     use super::*;
 
     use crate::testutil::data_dir;
+
+    #[test]
+    fn depth_to_metres_scales_every_pixel_in_place_as_orbslam2() {
+        let raw = Gray16Image::from_fn(7, 5, |x, y| Luma([(x * 1000 + y * 7) as u16]));
+        let m = depth_to_metres(&raw, 5000.0);
+        assert_eq!(m.dimensions(), (7, 5));
+        let scale = 1.0f32 / 5000.0;
+        for (x, y, p) in m.enumerate_pixels() {
+            let want = raw.get_pixel(x, y)[0] as f32 * scale;
+            assert_eq!(p[0].to_bits(), want.to_bits(), "pixel ({x}, {y})");
+        }
+        assert_eq!(m.get_pixel(0, 0)[0], 0.0, "no depth stays 0");
+        assert_eq!(m.get_pixel(6, 4)[0], 6028.0 * scale);
+    }
 
     #[test]
     fn depth_round_trip_and_metres() {
