@@ -533,12 +533,20 @@ impl Lm<'_, '_> {
         let mut done = 0;
         for it in 0..iterations {
             done += 1;
+            // From the second iteration on, the damping of the first trial is known before
+            // the linearisation, and a chunk's reduction reads only what its own
+            // linearisation wrote: both run in one parallel loop (the same operations on the
+            // same data, one hand-over between the threads fewer).
+            let reduced_with = (it > 0).then_some(lambda);
             {
                 let rt = to_rt(poses);
                 let (p, pts) = (&rt, &*points);
-                self.chunks
-                    .par_iter_mut()
-                    .for_each(|c| c.linearize(isa, ctx, p, pts, active, robust));
+                self.chunks.par_iter_mut().for_each(|c| {
+                    c.linearize(isa, ctx, p, pts, active, robust);
+                    if let Some(l) = reduced_with {
+                        c.reduce(isa, ctx, l);
+                    }
+                });
             }
             let mut cost = 0.0;
             a_tot.iter_mut().for_each(|m| *m = Matrix6::zeros());
@@ -572,10 +580,12 @@ impl Lm<'_, '_> {
 
             let mut accepted = false;
             let mut converged = false;
-            for _ in 0..LM_MAX_TRIALS {
-                self.chunks
-                    .par_iter_mut()
-                    .for_each(|c| c.reduce(isa, ctx, lambda));
+            for trial in 0..LM_MAX_TRIALS {
+                if trial > 0 || reduced_with != Some(lambda) {
+                    self.chunks
+                        .par_iter_mut()
+                        .for_each(|c| c.reduce(isa, ctx, lambda));
+                }
                 rhs.copy_from(&gc_tot);
                 rhs.neg_mut();
                 for c in self.chunks.iter() {
@@ -609,26 +619,25 @@ impl Lm<'_, '_> {
                     nu *= 2.0;
                     continue;
                 };
-                self.chunks
-                    .par_iter_mut()
-                    .for_each(|c| c.back_substitute(isa, &dc, lambda));
-                let mut predicted = dc.dot(&(lambda * &dc - &gc_tot));
-                let mut finite = true;
-                for c in self.chunks.iter() {
-                    predicted += c.pred;
-                    finite &= c.dp.iter().all(|d| d.iter().all(|x| x.is_finite()));
-                }
                 let mut cand = poses.clone();
                 for (k, &pi) in self.var_pose.iter().enumerate() {
                     let d: Vector6<f64> = dc.fixed_rows::<6>(6 * k).into_owned();
                     cand[pi] = se3::exp(&d) * poses[pi];
                 }
                 {
+                    // A chunk's candidate cost needs only its own point steps: one loop.
                     let rt = to_rt(&cand);
-                    let (cp, pts) = (&rt, &*points);
-                    self.chunks
-                        .par_iter_mut()
-                        .for_each(|c| c.candidate_cost(isa, ctx, cp, pts, active, robust));
+                    let (cp, pts, dc) = (&rt, &*points, &dc);
+                    self.chunks.par_iter_mut().for_each(|c| {
+                        c.back_substitute(isa, dc, lambda);
+                        c.candidate_cost(isa, ctx, cp, pts, active, robust);
+                    });
+                }
+                let mut predicted = dc.dot(&(lambda * &dc - &gc_tot));
+                let mut finite = true;
+                for c in self.chunks.iter() {
+                    predicted += c.pred;
+                    finite &= c.dp.iter().all(|d| d.iter().all(|x| x.is_finite()));
                 }
                 let new_cost: f64 = self.chunks.iter().map(|c| c.new_cost).sum();
                 let gain = (cost - new_cost) / predicted;
