@@ -46,6 +46,9 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // Before any thread starts: keep freed frame buffers for reuse instead of faulting their
+    // pages in again for every frame (see the function's documentation).
+    dynapix::profile::retain_freed_memory();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "warn",
