@@ -28,7 +28,10 @@ fn a_freed_frame_buffer_is_reused_without_faulting_its_pages_in_again() {
     // glibc's defaults: the first buffer of this size is mapped and unmapped, the second
     // comes from a grown heap; both fault every page in.
     let untuned = [faults_of_one_buffer(BYTES), faults_of_one_buffer(BYTES)];
-    assert!(untuned.iter().all(|f| *f > pages / 2), "{untuned:?} faults for {pages} pages");
+    assert!(
+        untuned.iter().all(|f| *f > pages / 2),
+        "{untuned:?} faults for {pages} pages"
+    );
     assert!(dynapix::profile::retain_freed_memory());
     // After the change, a buffer of a new size is faulted in once and then reused.
     let size = BYTES + (2 << 20);
