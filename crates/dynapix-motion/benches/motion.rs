@@ -64,6 +64,9 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("motion_640x480");
     g.sample_size(10);
     let mp = dynapix_motion::MovableParams::default();
+    g.bench_function("to_gray", |b| {
+        b.iter(|| dynapix_motion::moving::to_gray(std::hint::black_box(rgb)))
+    });
     g.bench_function("movable", |b| {
         b.iter(|| movable(rgb, bg, depth, &mp).unwrap())
     });

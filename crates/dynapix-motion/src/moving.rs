@@ -89,13 +89,26 @@ impl MovingParams {
 
 /// Grey level of an RGB image (ITU-R BT.601 weights) for the flow.
 pub fn to_gray(img: &RgbImage) -> GrayImage {
-    let mut out = GrayImage::new(img.width(), img.height());
-    for (o, p) in out.pixels_mut().zip(img.pixels()) {
-        let [r, g, b] = p.0;
-        let v = 0.299 * r as f32 + 0.587 * g as f32 + 0.114 * b as f32;
-        o.0[0] = v.round().clamp(0.0, 255.0) as u8;
-    }
-    out
+    let (w, h) = img.dimensions();
+    let data = img
+        .as_raw()
+        .chunks_exact(3)
+        .map(|p| {
+            let v = 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32;
+            round_grey(v)
+        })
+        .collect();
+    GrayImage::from_raw(w, h, data).expect("one grey byte per RGB pixel")
+}
+
+/// `v.round().clamp(0.0, 255.0) as u8` for a weighted sum `v` of bytes (0 ≤ v < 256),
+/// without a call to `roundf`: the truncation's fraction `v − ⌊v⌋` is exact in `f32` below
+/// 2²³, so comparing it with ½ rounds half away from zero exactly as `f32::round`.
+#[inline(always)]
+fn round_grey(v: f32) -> u8 {
+    let t = v as u32; // truncation towards zero (saturating: 0 for v < 0)
+    let up = u32::from(v - t as f32 >= 0.5);
+    (t + up).min(255) as u8
 }
 
 /// Grey level of a warped image with its holes replaced by `fill`.
@@ -383,6 +396,31 @@ pub fn moving_term(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn to_gray_rounds_every_colour_as_f32_round() {
+        // Every (r, g, b) at once: a 4096 × 4096 image holds all 2²⁴ colours.
+        let img = RgbImage::from_fn(4096, 4096, |x, y| {
+            let i = y * 4096 + x;
+            image::Rgb([(i >> 16) as u8, (i >> 8) as u8, i as u8])
+        });
+        let grey = to_gray(&img);
+        for (g, p) in grey.pixels().zip(img.pixels()) {
+            let [r, gr, b] = p.0;
+            let v = 0.299 * r as f32 + 0.587 * gr as f32 + 0.114 * b as f32;
+            assert_eq!(g.0[0], v.round().clamp(0.0, 255.0) as u8, "{:?}", p.0);
+        }
+        // Halves and their neighbours, where truncating and rounding differ.
+        for k in 0..=255u32 {
+            for v in [
+                k as f32 + 0.5,
+                (k as f32 + 0.5).next_down(),
+                (k as f32 + 0.5).next_up(),
+            ] {
+                assert_eq!(round_grey(v), v.round().clamp(0.0, 255.0) as u8, "{v}");
+            }
+        }
+    }
     use crate::testutil::{BlockFlow, Scene, small_camera};
 
     #[test]
