@@ -89,16 +89,12 @@ impl MovingParams {
 
 /// Grey level of an RGB image (ITU-R BT.601 weights) for the flow.
 pub fn to_gray(img: &RgbImage) -> GrayImage {
-    let (w, h) = img.dimensions();
-    let data = img
-        .as_raw()
-        .chunks_exact(3)
-        .map(|p| {
-            let v = 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32;
-            round_grey(v)
-        })
-        .collect();
-    GrayImage::from_raw(w, h, data).expect("one grey byte per RGB pixel")
+    let mut out = GrayImage::new(img.width(), img.height());
+    for (o, p) in out.iter_mut().zip(img.as_raw().chunks_exact(3)) {
+        let v = 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32;
+        *o = round_grey(v);
+    }
+    out
 }
 
 /// `v.round().clamp(0.0, 255.0) as u8` for a weighted sum `v` of bytes (0 ≤ v < 256),
