@@ -53,6 +53,16 @@ pub struct LocalMappingParams {
     /// local points are held fixed). ORB-SLAM2 takes all covisibles, which makes every local
     /// BA global when the whole map is covisible (small static scenes); 20 keeps it local.
     pub ba_max_local_keyframes: usize,
+    /// Local BA of a keyframe is left to the next keyframe's when the last local BA ran on a
+    /// keyframe taken less than this many seconds (of sequence time) before it (0.05; 0 runs
+    /// it on every keyframe). The next BA's window holds the skipped keyframe, its best
+    /// covisible, so it is optimised one frame later. ORB-SLAM2's mapping thread does the
+    /// same when keyframes arrive faster than it maps them (it skips fusion, BA and keyframe
+    /// culling while a keyframe waits, and aborts a running BA when one arrives), at times
+    /// set by the thread scheduler; here the frame times decide, so runs stay identical.
+    /// Only the BA waits here: fusion and keyframe culling run on every keyframe. At
+    /// 30 frames/s, 0.05 s means: no local BA on two consecutive frames.
+    pub ba_min_interval_s: f64,
     /// Bundle adjustment parameters.
     pub ba: BaParams,
     /// Matcher thresholds.
@@ -78,6 +88,7 @@ impl Default for LocalMappingParams {
             kf_cull_observers: 3,
             bow_group_depth: 2,
             ba_max_local_keyframes: 20,
+            ba_min_interval_s: 0.05,
             ba: BaParams::default(),
             matcher: MatcherParams::default(),
         }
@@ -97,6 +108,8 @@ pub struct MappingStats {
     pub ba_outliers: usize,
     /// Keyframes culled.
     pub culled_keyframes: usize,
+    /// Local BA was left to the next keyframe ([`LocalMappingParams::ba_min_interval_s`]).
+    pub ba_skipped: bool,
 }
 
 /// The local-mapping stage.
@@ -105,6 +118,8 @@ pub struct LocalMapper {
     pub params: LocalMappingParams,
     cam: RgbdCamera,
     recent: Vec<MapPointId>,
+    /// Time stamp of the keyframe of the last local BA.
+    last_ba_time: Option<f64>,
 }
 
 impl LocalMapper {
@@ -114,12 +129,24 @@ impl LocalMapper {
             params,
             cam,
             recent: Vec::new(),
+            last_ba_time: None,
         }
     }
 
     /// Forgets scratch state (after a map reset).
     pub fn reset(&mut self) {
         self.recent.clear();
+        self.last_ba_time = None;
+    }
+
+    /// True when the local BA of a keyframe taken at `time` waits for the next keyframe's
+    /// (see [`LocalMappingParams::ba_min_interval_s`]).
+    fn defers_ba(&self, time: Option<f64>) -> bool {
+        match (time, self.last_ba_time) {
+            // Times that go backwards never defer: the BA runs and becomes the new reference.
+            (Some(t), Some(last)) => (0.0..self.params.ba_min_interval_s).contains(&(t - last)),
+            _ => false,
+        }
     }
 
     /// Runs all local-mapping steps on keyframe `kf`.
@@ -156,7 +183,10 @@ impl LocalMapper {
             stats.fused = self.search_in_neighbors(map, kf);
         }
         let t3 = std::time::Instant::now();
-        if map.num_keyframes() > self.params.ba_min_keyframes {
+        let time = map.keyframe(kf).map(|k| k.timestamp);
+        stats.ba_skipped = self.defers_ba(time);
+        if !stats.ba_skipped && map.num_keyframes() > self.params.ba_min_keyframes {
+            self.last_ba_time = time;
             let _stage =
                 tracing::info_span!(target: "dynapix::stage", "mapping: local BA").entered();
             stats.ba_outliers = self.local_bundle_adjustment(map, kf);

@@ -983,6 +983,80 @@ mod tests {
         assert_eq!((traj_d, kfs_d, size_d), (traj, kfs, size));
     }
 
+    /// `(time, keyframe, mapping counters)` per frame of 40 synthetic `walking_xyz` frames
+    /// at 320×240 (30 frames/s) run with `params`.
+    fn run_with(params: SystemParams) -> Vec<(f64, bool, Option<MappingStats>)> {
+        let n = 40;
+        let synth =
+            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, n, 0, 320, 240);
+        let seq = dynapix_synth::Sequence::new(synth).expect("sequence");
+        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
+        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        let mut sys = System::new(OrbExtractor::default(), cam, params);
+        (0..n)
+            .map(|i| {
+                let (f, _) = seq.frame(i, None);
+                let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
+                let depth = f.depth_metres();
+                let r = sys
+                    .process(FrameInput {
+                        timestamp: seq.time(i),
+                        gray: &gray,
+                        depth: &depth,
+                        weights: None,
+                        masks: None,
+                    })
+                    .expect("frame");
+                assert!(r.pose_cw.is_some(), "frame {i} tracked");
+                (seq.time(i), r.new_keyframe, r.mapping)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn local_ba_waits_for_the_next_keyframe_within_the_minimum_interval() {
+        let mut params = SystemParams::default();
+        assert_eq!(params.mapping.ba_min_interval_s, 0.05);
+        params.mapping.ba_min_keyframes = 0;
+        let frames = run_with(params.clone());
+        let mapped: Vec<(f64, bool)> = frames
+            .iter()
+            .filter_map(|(t, _, m)| m.as_ref().map(|m| (*t, m.ba_skipped)))
+            .collect();
+        assert!(mapped.len() >= 4, "{} keyframes: {mapped:?}", mapped.len());
+        // Every BA ran at least 0.05 s after the one before, and every skipped one within
+        // 0.05 s of it: at 30 frames/s, never on two consecutive frames, and never skipped
+        // twice in a row.
+        let mut last_ba: Option<f64> = None;
+        let mut skipped = 0;
+        for &(t, skip) in &mapped {
+            match (skip, last_ba) {
+                (true, Some(l)) => {
+                    assert!(t - l < 0.05, "skipped at {t}, last BA at {l}");
+                    skipped += 1;
+                }
+                (true, None) => panic!("the first keyframe's BA was skipped"),
+                (false, l) => {
+                    assert!(l.is_none_or(|l| t - l >= 0.05), "BA at {t} after {l:?}");
+                    last_ba = Some(t);
+                }
+            }
+        }
+        assert!(
+            skipped > 0,
+            "keyframes on consecutive frames make some BA wait"
+        );
+        // 0 runs it on every keyframe.
+        params.mapping.ba_min_interval_s = 0.0;
+        let every = run_with(params);
+        assert!(
+            every
+                .iter()
+                .all(|f| f.2.as_ref().is_none_or(|m| !m.ba_skipped))
+        );
+        assert!(every.iter().filter(|f| f.2.is_some()).count() >= 4);
+    }
+
     fn positions(sys: &System<OrbExtractor>) -> Vec<Option<nalgebra::Vector3<f64>>> {
         sys.trajectory()
             .iter()

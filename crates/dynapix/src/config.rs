@@ -656,6 +656,12 @@ impl Config {
                 "slam.params.mapping.ba.min_relative_decrease must lie in [0, 1), got {v}"
             )));
         }
+        let v = self.slam.params.mapping.ba_min_interval_s;
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(Error::config(format!(
+                "slam.params.mapping.ba_min_interval_s must be a non-negative number of seconds, got {v}"
+            )));
+        }
         let d = &self.slam.params.map.dynapix;
         for (key, v) in [("gamma_add", d.gamma_add), ("gamma_del", d.gamma_del)] {
             if !(0.0..=1.0).contains(&v) {
@@ -848,6 +854,19 @@ mod tests {
             c.slam.params.mapping.ba.min_relative_decrease = bad;
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains("min_relative_decrease"), "{e}");
+        }
+        // Local BA waits for the next keyframe within 0.05 s of the last one, in every mode;
+        // a config file can turn that off, and a bad value is refused by name.
+        assert_eq!(orb.mapping.ba_min_interval_s, 0.05);
+        assert_eq!(p.system_params().mapping.ba_min_interval_s, 0.05);
+        let c =
+            Config::from_yaml_str("slam: {params: {mapping: {ba_min_interval_s: 0}}}\n").unwrap();
+        assert_eq!(c.system_params().mapping.ba_min_interval_s, 0.0);
+        for bad in [-0.1, f64::NAN, f64::INFINITY] {
+            let mut c = p.clone();
+            c.slam.params.mapping.ba_min_interval_s = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("ba_min_interval_s"), "{e}");
         }
         let mut all = p.clone();
         all.slam.params.final_global_ba = true;
