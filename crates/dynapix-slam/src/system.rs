@@ -864,19 +864,28 @@ mod tests {
         };
         let mut sys = System::new(OrbExtractor::default(), cam, params);
         for i in 0..40 {
-            let (f, _) = seq.frame(i, None);
-            let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
-            let depth = f.depth_metres();
-            sys.process(FrameInput {
-                timestamp: seq.time(i),
-                gray: &gray,
-                depth: &depth,
-                weights: None,
-                masks: None,
-            })
-            .expect("frame");
+            process_synth(&mut sys, &seq, i);
         }
         sys
+    }
+
+    /// Frame `i` of `seq` through [`System::process`].
+    fn process_synth(
+        sys: &mut System<OrbExtractor>,
+        seq: &dynapix_synth::Sequence,
+        i: usize,
+    ) -> FrameResult {
+        let (f, _) = seq.frame(i, None);
+        let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
+        let depth = f.depth_metres();
+        sys.process(FrameInput {
+            timestamp: seq.time(i),
+            gray: &gray,
+            depth: &depth,
+            weights: None,
+            masks: None,
+        })
+        .expect("frame")
     }
 
     /// How [`deferred_mapping_gives_the_results_of_process`] feeds a system.
@@ -995,18 +1004,7 @@ mod tests {
         let mut sys = System::new(OrbExtractor::default(), cam, params);
         (0..n)
             .map(|i| {
-                let (f, _) = seq.frame(i, None);
-                let gray = crate::orb::rgb_to_gray_orbslam(&f.rgb);
-                let depth = f.depth_metres();
-                let r = sys
-                    .process(FrameInput {
-                        timestamp: seq.time(i),
-                        gray: &gray,
-                        depth: &depth,
-                        weights: None,
-                        masks: None,
-                    })
-                    .expect("frame");
+                let r = process_synth(&mut sys, &seq, i);
                 assert!(r.pose_cw.is_some(), "frame {i} tracked");
                 (seq.time(i), r.new_keyframe, r.mapping)
             })
