@@ -869,6 +869,16 @@ mod tests {
         sys
     }
 
+    /// `n` frames of the synthetic `walking_xyz` preset at 320×240 (seed 0) and its camera.
+    fn walking_sequence(n: usize) -> (dynapix_synth::Sequence, RgbdCamera) {
+        let params =
+            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, n, 0, 320, 240);
+        let seq = dynapix_synth::Sequence::new(params).expect("sequence");
+        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
+        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        (seq, cam)
+    }
+
     /// Frame `i` of `seq` through [`System::process`].
     fn process_synth(
         sys: &mut System<OrbExtractor>,
@@ -912,11 +922,7 @@ mod tests {
         usize,
     ) {
         let n = 40;
-        let params =
-            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, n, 0, 320, 240);
-        let seq = dynapix_synth::Sequence::new(params).expect("sequence");
-        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
-        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        let (seq, cam) = walking_sequence(n);
         let mut sys = System::new(OrbExtractor::default(), cam, SystemParams::default());
         let mut stage = sys.feature_stage();
         let mut frames = Vec::new();
@@ -996,11 +1002,7 @@ mod tests {
     /// at 320×240 (30 frames/s) run with `params`.
     fn run_with(params: SystemParams) -> Vec<(f64, bool, Option<MappingStats>)> {
         let n = 40;
-        let synth =
-            dynapix_synth::SynthParams::at_size(dynapix_synth::Preset::WalkingXyz, n, 0, 320, 240);
-        let seq = dynapix_synth::Sequence::new(synth).expect("sequence");
-        let st = dynapix_synth::output::camera_settings(&seq.params.camera, seq.params.fps);
-        let cam = RgbdCamera::new(st.camera(), st.bf, st.th_depth, st.fps);
+        let (seq, cam) = walking_sequence(n);
         let mut sys = System::new(OrbExtractor::default(), cam, params);
         (0..n)
             .map(|i| {
