@@ -11,6 +11,9 @@ use dynapix_geometry::PinholeCamera;
 use dynapix_io::Trajectory;
 use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
 use dynapix_motion::moving::to_gray;
+use dynapix_motion::rigidity::{
+    RigidityParams, camera_rays, correspondences, dense_residual, fit_rigid_motion,
+};
 use dynapix_motion::static_depth::{
     DepthView, StaticDepthParams, WorkingDepth, geometric_term, static_depth,
 };
@@ -155,6 +158,26 @@ fn bench(c: &mut Criterion) {
     let sd = static_depth(&dcam, &views, &sdp).unwrap();
     g.bench_function("geometric_term", |b| {
         b.iter(|| geometric_term(&working[c0], &sd, &sdp).unwrap())
+    });
+    // The rigidity cue's stages on the pair (c0, c0 + 2) with the default parameters: the
+    // flow at its working width, the correspondences and the RANSAC fit, the dense residual.
+    let rp = RigidityParams::default();
+    let rays = camera_rays(&cam);
+    let (g0, g2) = (to_gray(rgb), to_gray(&frames[c0 + 2].0));
+    let d2 = &frames[c0 + 2].1;
+    let dis = rp.flow_for_width(cam.width);
+    let f02 = dis.flow(&g0, &g2).unwrap();
+    g.bench_function("rigidity_flow", |b| b.iter(|| dis.flow(&g0, &g2).unwrap()));
+    let corr = correspondences(depth, d2, &f02, &rays, &rp).unwrap();
+    g.bench_function("rigidity_fit", |b| {
+        b.iter(|| {
+            let corr = correspondences(depth, d2, &f02, &rays, &rp).unwrap();
+            fit_rigid_motion(&corr, &cam, &rp).unwrap()
+        })
+    });
+    let fit = fit_rigid_motion(&corr, &cam, &rp).unwrap();
+    g.bench_function("rigidity_residual", |b| {
+        b.iter(|| dense_residual(depth, d2, &f02, &rays, &fit.motion, &rp).unwrap())
     });
     g.finish();
 }

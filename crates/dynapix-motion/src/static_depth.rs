@@ -212,11 +212,31 @@ fn splat_nearest(
     out: &mut [f32],
 ) {
     #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has AVX-512F, checked just above.
+        unsafe { splat_nearest_avx512(cam, table, rays, view, out) };
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
         unsafe { splat_nearest_avx2(cam, table, rays, view, out) };
         return;
     }
+    splat_nearest_any(cam, table, rays, view, out);
+}
+
+/// [`splat_nearest_blocks`] compiled for AVX-512F (8 lanes of `f64`). No FMA: the same
+/// operations as the baseline build, so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn splat_nearest_avx512(
+    cam: &PinholeCamera,
+    table: Option<&dynapix_geometry::camera::PixelRays>,
+    rays: &Rays,
+    view: &DepthView<'_>,
+    out: &mut [f32],
+) {
     splat_nearest_any(cam, table, rays, view, out);
 }
 
@@ -307,7 +327,13 @@ fn splat_nearest_blocks<const DISTORTED: bool>(
                 (ux / f + 0.5, uy / f + 0.5)
             };
             let ok = ok & (u > 0.0) & (v > 0.0) & (u < wf) & (v < hf);
-            let i = (v as u32).wrapping_mul(w).wrapping_add(u as u32);
+            // Truncation of the clamped coordinates, which vectorises (`as` saturates, and its
+            // range checks are done a lane at a time): the same index wherever `ok`, since
+            // then 0 < u < w and 0 < v < h, and clamping leaves u and v as they are.
+            let (uc, vc) = (u.max(0.0).min(wf), v.max(0.0).min(hf));
+            // SAFETY: `max` turns NaN into 0, so uc and vc are finite, in [0, 2³²).
+            let (ui, vi) = unsafe { (uc.to_int_unchecked::<u32>(), vc.to_int_unchecked::<u32>()) };
+            let i = vi.wrapping_mul(w).wrapping_add(ui);
             idx[k] = if ok { i } else { u32::MAX };
             zs[k] = pz as f32;
         }
@@ -411,28 +437,33 @@ pub fn static_depth(
     });
     // Per pixel the views' depths are sorted, LANES pixels at a time, by a sorting network
     // over the views (branch-free min/max, vectorised across the pixels), then scanned.
-    let rows = splats.len().next_power_of_two();
-    let network = sorting_network(rows);
+    let rows = splats.len();
+    let network = sorting_network_for(rows);
     let wu = w as usize;
     let mut depth = vec![f32::NAN; n];
     depth.par_chunks_mut(wu).enumerate().for_each(|(j, row)| {
         let mut cols = vec![[f32::INFINITY; LANES]; rows];
-        let mut desc: Vec<f32> = Vec::with_capacity(splats.len());
         for i0 in (0..wu).step_by(LANES) {
             let m = LANES.min(wu - i0);
             let k0 = j * wu + i0;
             for (c, s) in cols.iter_mut().zip(&splats) {
-                c[..m].copy_from_slice(&s[k0..k0 + m]);
-                c[m..].fill(f32::INFINITY);
-            }
-            for c in &mut cols[splats.len()..] {
-                *c = [f32::INFINITY; LANES];
+                match s
+                    .get(k0..k0 + LANES)
+                    .and_then(|v| <&[f32; LANES]>::try_from(v).ok())
+                {
+                    // A whole block: a fixed-size copy, inlined instead of a `memmove` call.
+                    Some(v) if m == LANES => *c = *v,
+                    _ => {
+                        c[..m].copy_from_slice(&s[k0..k0 + m]);
+                        c[m..].fill(f32::INFINITY);
+                    }
+                }
             }
             sort_lanes(&mut cols, &network);
             for (l, out) in row[i0..i0 + m].iter_mut().enumerate() {
-                desc.clear();
-                desc.extend(cols.iter().rev().map(|c| c[l]).filter(|z| z.is_finite()));
-                *out = farthest_supported_in_sorted(&desc, params);
+                // Ascending, the views without a surface (infinite) last.
+                let n_fin = cols.partition_point(|c| c[l].is_finite());
+                *out = farthest_supported_ascending(|k| cols[k][l], n_fin, params);
             }
         }
     });
@@ -492,6 +523,17 @@ fn sorting_network(n: usize) -> Vec<(usize, usize)> {
     pairs
 }
 
+/// A sorting network for any number `n` of rows: [`sorting_network`] of the next power of
+/// two without the pairs that reach past `n`. Those rows would hold +∞, the largest value,
+/// which no compare-exchange ever moves (the smaller index gets the minimum), so the pairs
+/// that reach them change nothing.
+fn sorting_network_for(n: usize) -> Vec<(usize, usize)> {
+    sorting_network(n.next_power_of_two())
+        .into_iter()
+        .filter(|&(_, j)| j < n)
+        .collect()
+}
+
 /// Sorts every lane of `cols` ascending (row `r` holds the `r`-th value of each lane) with a
 /// network from [`sorting_network`]. The values must not be NaN. Sorting the same values
 /// gives the same sequence whatever the algorithm, so this equals a per-pixel sort.
@@ -538,7 +580,45 @@ fn farthest_supported(vals: &mut [f32], params: &StaticDepthParams) -> f32 {
     farthest_supported_in_sorted(vals, params)
 }
 
+/// [`farthest_supported`] of the `n` values `a(0) ≤ … ≤ a(n − 1)`, read in place: the same
+/// scan as [`farthest_supported_in_sorted`] from the far end, so the same result bit for bit
+/// (test `ascending_scan_equals_the_descending_scan`).
+#[inline(always)]
+fn farthest_supported_ascending(
+    a: impl Fn(usize) -> f32,
+    n: usize,
+    params: &StaticDepthParams,
+) -> f32 {
+    if n < params.min_support {
+        return f32::NAN;
+    }
+    for k in (0..n).rev() {
+        let v = a(k);
+        let tol = params.tol(v);
+        // The values within tol of v are a contiguous run lo..=hi around k.
+        let mut hi = k;
+        while hi + 1 < n && a(hi + 1) - v < tol {
+            hi += 1;
+        }
+        let mut lo = k;
+        while lo > 0 && v - a(lo - 1) < tol {
+            lo -= 1;
+        }
+        let m = hi - lo + 1;
+        if m >= params.min_support {
+            // The median of the run in descending order, as `median_sorted_desc`.
+            return if m % 2 == 1 {
+                a(hi - m / 2)
+            } else {
+                0.5 * (a(hi - m / 2 + 1) + a(hi - m / 2))
+            };
+        }
+    }
+    f32::NAN
+}
+
 /// [`farthest_supported`] of values already sorted descending.
+#[cfg(test)]
 fn farthest_supported_in_sorted(vals: &[f32], params: &StaticDepthParams) -> f32 {
     if vals.len() < params.min_support {
         return f32::NAN;
@@ -556,6 +636,7 @@ fn farthest_supported_in_sorted(vals: &[f32], params: &StaticDepthParams) -> f32
     f32::NAN
 }
 
+#[cfg(test)]
 fn median_sorted_desc(run: &[f32]) -> f32 {
     let m = run.len();
     if m % 2 == 1 {
@@ -887,9 +968,64 @@ mod tests {
                     let mut c2 = vec![f32::INFINITY; n];
                     splat_nearest_any(&c, table.as_deref(), &rays, &view, &mut c2);
                     assert!(c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+                    // Every instruction set the CPU has gives the same bits.
+                    #[cfg(target_arch = "x86_64")]
+                    for (isa, ok) in [
+                        ("avx2", std::is_x86_feature_detected!("avx2")),
+                        ("avx512f", std::is_x86_feature_detected!("avx512f")),
+                    ] {
+                        if !ok {
+                            continue;
+                        }
+                        c2.fill(f32::INFINITY);
+                        // SAFETY: the CPU has the instruction set, checked just above.
+                        unsafe {
+                            if isa == "avx2" {
+                                splat_nearest_avx2(&c, table.as_deref(), &rays, &view, &mut c2);
+                            } else {
+                                splat_nearest_avx512(&c, table.as_deref(), &rays, &view, &mut c2);
+                            }
+                        }
+                        assert!(
+                            c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+                            "{isa}"
+                        );
+                    }
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_network_for_any_number_of_rows_sorts_every_lane() {
+        let mut st = 7u64;
+        for n in 1usize..=40 {
+            let net = sorting_network_for(n);
+            assert!(net.iter().all(|&(i, j)| i < j && j < n));
+            for _ in 0..100 {
+                let mut cols: Vec<[f32; LANES]> = (0..n)
+                    .map(|_| {
+                        std::array::from_fn(|_| match lcg(&mut st) % 8 {
+                            0 => f32::INFINITY,
+                            _ => (lcg(&mut st) % 30) as f32 * 0.1,
+                        })
+                    })
+                    .collect();
+                let mut want = cols.clone();
+                sort_lanes(&mut cols, &net);
+                for l in 0..LANES {
+                    let mut lane: Vec<f32> = want.iter().map(|c| c[l]).collect();
+                    lane.sort_unstable_by(f32::total_cmp);
+                    for (c, v) in want.iter_mut().zip(lane) {
+                        c[l] = v;
+                    }
+                }
+                assert_eq!(cols, want, "n {n}");
+            }
+        }
+        // The pruned network is smaller (24 views: 132 pairs instead of 191).
+        assert_eq!(sorting_network_for(24).len(), 132);
+        assert_eq!(sorting_network(32).len(), 191);
     }
 
     #[test]
@@ -946,6 +1082,34 @@ mod tests {
         assert!((s - 2.0).abs() < 0.011, "{s}");
         let mut v = vec![1.0, 5.0];
         assert!(farthest_supported(&mut v, &p).is_nan());
+    }
+
+    #[test]
+    fn ascending_scan_equals_the_descending_scan() {
+        let p = StaticDepthParams::default();
+        let mut st = 11u64;
+        let mut supported = 0;
+        for n in 0..40 {
+            for _ in 0..200 {
+                // Clusters of nearby depths with outliers and exact ties.
+                let mut v: Vec<f32> = (0..n)
+                    .map(|_| {
+                        let c = (lcg(&mut st) % 4) as f32;
+                        match lcg(&mut st) % 8 {
+                            0 => 0.3 + (lcg(&mut st) % 8000) as f32 * 0.001,
+                            1 => 1.0 + c,
+                            _ => 1.0 + c + (lcg(&mut st) % 100) as f32 * 0.0007,
+                        }
+                    })
+                    .collect();
+                v.sort_unstable_by(f32::total_cmp);
+                let want = farthest_supported(&mut v.clone(), &p);
+                let got = farthest_supported_ascending(|k| v[k], v.len(), &p);
+                assert_eq!(got.to_bits(), want.to_bits(), "{v:?}");
+                supported += usize::from(want.is_finite());
+            }
+        }
+        assert!(supported > 1000, "{supported}");
     }
 
     #[test]
