@@ -883,7 +883,13 @@ fn residual_row_body(
             let inside = (0.0..=xmax).contains(&u2) & (0.0..=ymax).contains(&v2);
             let (ur, vr) = (u2.round(), v2.round());
             let valid = !(z.is_nan() || z <= min_depth) & rays_i[x][0].is_finite() & inside;
-            let k = (vr as usize).wrapping_mul(w).wrapping_add(ur as usize);
+            // Truncation of the clamped rounded target, which vectorises (`as` saturates, a
+            // lane at a time): the same index wherever `inside`, where clamping changes
+            // nothing; elsewhere the pixel is invalid anyway.
+            let (uc, vc) = (ur.max(0.0).min(xmax), vr.max(0.0).min(ymax));
+            // SAFETY: `max` turns NaN into 0, so uc and vc are finite, in [0, 2³²).
+            let (ui, vi) = unsafe { (uc.to_int_unchecked::<u32>(), vc.to_int_unchecked::<u32>()) };
+            let k = (vi as usize).wrapping_mul(w).wrapping_add(ui as usize);
             ok[j] = valid & (k < w * h);
             at[j] = if ok[j] { k } else { 0 };
             du[j] = u2 - ur;
