@@ -913,12 +913,14 @@ mod tests {
                     })
                     .collect();
                 let (a, b) = (min_filter(&v, w, h, r), min_filter_naive(&v, w, h, r));
-                assert!(
-                    a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
-                    "{w}x{h} r{r}"
-                );
+                assert!(same_bits(&a, &b), "{w}x{h} r{r}");
             }
         }
+    }
+
+    /// Equal bit for bit, element by element (NaN included).
+    fn same_bits(a: &[f32], b: &[f32]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
     }
 
     #[test]
@@ -962,12 +964,12 @@ mod tests {
                     splat_nearest_reference(&c, table.as_deref(), &rays, &view, &mut b);
                     assert!(a.iter().any(|z| z.is_finite()));
                     assert!(
-                        a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+                        same_bits(&a, &b),
                         "{w}x{h} distorted {distorted} working width {working_width}"
                     );
                     let mut c2 = vec![f32::INFINITY; n];
                     splat_nearest_any(&c, table.as_deref(), &rays, &view, &mut c2);
-                    assert!(c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+                    assert!(same_bits(&c2, &b));
                     // Every instruction set the CPU has gives the same bits.
                     #[cfg(target_arch = "x86_64")]
                     for (isa, ok) in [
@@ -986,10 +988,7 @@ mod tests {
                                 splat_nearest_avx512(&c, table.as_deref(), &rays, &view, &mut c2);
                             }
                         }
-                        assert!(
-                            c2.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
-                            "{isa}"
-                        );
+                        assert!(same_bits(&c2, &b), "{isa}");
                     }
                 }
             }
