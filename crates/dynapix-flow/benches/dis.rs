@@ -1,5 +1,5 @@
 //! DIS on a real 640×480 pair (two consecutive TUM fr1_xyz frames; a synthetic textured pair
-//! when the data is missing), every preset.
+//! when the data is missing), every preset, and the rigidity cue's flow (medium at 160 px).
 //!
 //! `cargo bench -p dynapix-flow --bench dis`
 
@@ -45,6 +45,21 @@ fn bench(c: &mut Criterion) {
             bench.iter(|| dis.flow(black_box(&a), black_box(&b)))
         });
     }
+    // The rigidity cue's flow: medium stopped at the 160-pixel-wide level (its working width
+    // on 640×480), on the default pool and on one thread (its CPU cost per call).
+    let mut p = dynapix_flow::DisParams::preset(Preset::Medium);
+    p.finest_scale = 2;
+    let dis = DisFlow::new(p);
+    g.bench_function("medium_160", |bench| {
+        bench.iter(|| dis.flow(black_box(&a), black_box(&b)))
+    });
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a one-thread pool");
+    g.bench_function("medium_160_one_thread", |bench| {
+        bench.iter(|| one.install(|| dis.flow(black_box(&a), black_box(&b))))
+    });
     g.finish();
 }
 

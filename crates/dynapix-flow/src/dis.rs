@@ -418,11 +418,23 @@ fn patch_sums<const N: usize>(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f
         }
     }
     [
-        sd.iter().sum(),
-        sdd.iter().sum(),
-        sdx.iter().sum(),
-        sdy.iter().sum(),
+        sum_in_order(&sd),
+        sum_in_order(&sdd),
+        sum_in_order(&sdx),
+        sum_in_order(&sdy),
     ]
+}
+
+/// The sum of `lanes` from the first to the last: the same operations, in the same order,
+/// as `lanes.iter().sum()` (whose fold starts at −0.0, and −0.0 + x = x), but inlined into
+/// the calling kernel instead of a call per sum.
+#[inline(always)]
+fn sum_in_order<const N: usize>(lanes: &[f32; N]) -> f32 {
+    let mut s = -0.0f32;
+    for &x in lanes {
+        s += x;
+    }
+    s
 }
 
 /// Start offsets into B and A and the bilinear fractions of an 8×8 patch at (x, y) / (px, py),
@@ -507,7 +519,7 @@ fn patch_sums_8_sse(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
     };
     acc.map(|(lo, hi)| {
         let (l, h) = (lanes(lo), lanes(hi));
-        l.iter().chain(h.iter()).sum()
+        sum_in_order(&[l[0], l[1], l[2], l[3], h[0], h[1], h[2], h[3]])
     })
 }
 
@@ -555,7 +567,7 @@ fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
         let mut o = [0.0f32; 8];
         // SAFETY: `o` has room for 8 floats.
         unsafe { _mm256_storeu_ps(o.as_mut_ptr(), v) };
-        o.iter().sum()
+        sum_in_order(&o)
     })
 }
 
@@ -833,8 +845,46 @@ fn dis_level(a: &Plane, b: &Plane, u: &mut Plane, v: &mut Plane, p: &DisParams) 
     densify(&ctx, &xs, &ys, &su, &sv, u, v);
 }
 
-/// Dense flow as the photometrically weighted average of the covering patches (paper §2.2).
+/// Dense flow as the photometrically weighted average of the covering patches (paper §2.2),
+/// with AVX2 code when the CPU has it. Both builds do the same operations in the same order
+/// (one patch row of 8 pixels is one AVX2 vector; no fused multiply-add is enabled), so the
+/// results are identical (test `densify_is_the_same_with_and_without_avx2`).
 fn densify(
+    ctx: &LevelCtx,
+    xs: &[usize],
+    ys: &[usize],
+    su: &[f32],
+    sv: &[f32],
+    u: &mut Plane,
+    v: &mut Plane,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked at run time just above).
+        unsafe { densify_avx2(ctx, xs, ys, su, sv, u, v) };
+        return;
+    }
+    densify_impl(ctx, xs, ys, su, sv, u, v);
+}
+
+/// [`densify_impl`] compiled for AVX2 (its row closure inherits the feature).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn densify_avx2(
+    ctx: &LevelCtx,
+    xs: &[usize],
+    ys: &[usize],
+    su: &[f32],
+    sv: &[f32],
+    u: &mut Plane,
+    v: &mut Plane,
+) {
+    densify_impl(ctx, xs, ys, su, sv, u, v);
+}
+
+/// The body of [`densify`].
+#[inline(always)]
+fn densify_impl(
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],
@@ -1034,6 +1084,62 @@ mod tests {
             unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &mut u2, &mut v2, forward, 12, true) };
         }
         assert_eq!((u1, v1), (u2, v2));
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn densify_is_the_same_with_and_without_avx2() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("skipping: no AVX2 on this CPU");
+            return;
+        }
+        let (w, h) = (97, 70);
+        let b = pairs::texture(w, h);
+        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+        let (pa, pb) = (Plane::from_gray(&a), Plane::from_gray(&b));
+        let (ax, ay) = pa.sobel();
+        let bp = pb.padded(SEARCH_BORDER);
+        let ctx = LevelCtx {
+            a: &pa,
+            ax: &ax,
+            ay: &ay,
+            bp: &bp,
+            ps: 8,
+            mean_norm: true,
+            step: 0.125,
+        };
+        let xs = patch_origins(w as usize, 8, 3);
+        let ys = patch_origins(h as usize, 8, 3);
+        let n = xs.len() * ys.len();
+        let su: Vec<f32> = (0..n)
+            .map(|i| ((i * 13) % 29) as f32 * 0.37 - 5.1)
+            .collect();
+        let sv: Vec<f32> = (0..n).map(|i| ((i * 7) % 23) as f32 * 0.29 - 3.3).collect();
+        let (w, h) = (w as usize, h as usize);
+        let (mut u1, mut v1) = (Plane::zeros(w, h), Plane::zeros(w, h));
+        let (mut u2, mut v2) = (Plane::zeros(w, h), Plane::zeros(w, h));
+        densify_impl(&ctx, &xs, &ys, &su, &sv, &mut u1, &mut v1);
+        // SAFETY: AVX2 support was checked above.
+        unsafe { densify_avx2(&ctx, &xs, &ys, &su, &sv, &mut u2, &mut v2) };
+        let bits = |p: &Plane| p.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&u1), bits(&u2));
+        assert_eq!(bits(&v1), bits(&v2));
+        assert!(u1.data.iter().any(|&x| x != 0.0));
+    }
+
+    #[test]
+    fn the_inlined_sum_is_the_iterator_sum_bit_for_bit() {
+        let cases: [[f32; 8]; 5] = [
+            [-0.0; 8],
+            [0.0, -0.0, -0.0, -0.0, -0.0, -0.0, -0.0, -0.0],
+            [1e8, 1.0, -1e8, 1.0, 3.5e-3, -7.25, 1e-30, 2.0],
+            [f32::INFINITY, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0],
+            [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8],
+        ];
+        for c in cases {
+            let want: f32 = c.iter().sum();
+            assert_eq!(sum_in_order(&c).to_bits(), want.to_bits(), "{c:?}");
+        }
     }
 
     #[test]

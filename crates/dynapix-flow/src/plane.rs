@@ -228,48 +228,101 @@ impl Plane {
     }
 }
 
+/// Source taps `(i0, i1, weight of i1)` of the `n_dst` output samples of a bilinear resize
+/// from `n_src` samples with pixel centres aligned (`x_src = (x_dst + 0.5) · s − 0.5`).
+fn resize_taps(n_dst: usize, n_src: usize, s: f32) -> Vec<(usize, usize, f32)> {
+    (0..n_dst)
+        .map(|d| {
+            let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+            let i0 = p as usize;
+            (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+        })
+        .collect()
+}
+
+/// The horizontal half of a separable bilinear flow resize: every source row that an output
+/// row reads, interpolated once to the output width (`rows[slot[y]]` holds source row `y`).
+/// Each output row then only blends two of these rows. Per pixel this evaluates exactly the
+/// expressions of the direct two-dimensional interpolation, so the result has the same bits;
+/// a source row is interpolated once instead of once per output row that reads it.
+struct ResizeRows {
+    /// Output width.
+    dw: usize,
+    /// Slot of each source row in `u`/`v` (`usize::MAX`: not read).
+    slot: Vec<usize>,
+    /// Horizontally interpolated u rows, `dw` values per slot.
+    u: Vec<f32>,
+    /// Horizontally interpolated v rows.
+    v: Vec<f32>,
+}
+
+impl ResizeRows {
+    fn new(u: &Plane, v: &Plane, dw: usize, rows: &[(usize, usize, f32)]) -> Self {
+        let cols = resize_taps(dw, u.w, u.w as f32 / dw as f32);
+        let mut slot = vec![usize::MAX; u.h];
+        let mut used = Vec::new();
+        for &(y0, y1, _) in rows {
+            for y in [y0, y1] {
+                if slot[y] == usize::MAX {
+                    slot[y] = used.len();
+                    used.push(y);
+                }
+            }
+        }
+        let mut hu = vec![0.0f32; used.len() * dw];
+        let mut hv = vec![0.0f32; used.len() * dw];
+        let sw = u.w;
+        hu.par_chunks_mut(dw)
+            .zip(hv.par_chunks_mut(dw))
+            .zip(used.par_iter())
+            .with_min_len(min_rows(dw))
+            .for_each(|((ru, rv), &y)| {
+                let (su, sv) = (&u.data[y * sw..(y + 1) * sw], &v.data[y * sw..(y + 1) * sw]);
+                for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
+                    *pu = su[x0] + fx * (su[x1] - su[x0]);
+                    *pv = sv[x0] + fx * (sv[x1] - sv[x0]);
+                }
+            });
+        Self {
+            dw,
+            slot,
+            u: hu,
+            v: hv,
+        }
+    }
+
+    /// The interpolated u and v rows of source row `y`.
+    #[inline]
+    fn row(&self, y: usize) -> (&[f32], &[f32]) {
+        let o = self.slot[y] * self.dw;
+        (&self.u[o..o + self.dw], &self.v[o..o + self.dw])
+    }
+}
+
 /// Bilinear resize of a flow (u, v planes) to `dw × dh`, scaling vectors by the size ratio.
 /// Pixel centres are aligned (`x_src = (x_dst + 0.5) · sw/dw − 0.5`), as in an image resize.
 pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane) {
+    let mut ou = Plane::zeros(dw, dh);
+    let mut ov = Plane::zeros(dw, dh);
+    if dw == 0 || dh == 0 || u.w == 0 || u.h == 0 {
+        return (ou, ov);
+    }
     let sx = u.w as f32 / dw as f32;
     let sy = u.h as f32 / dh as f32;
     let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
-    // Source columns and weights are the same for every row: compute them once.
-    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
-        (0..n_dst)
-            .map(|d| {
-                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
-                let i0 = p as usize;
-                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
-            })
-            .collect()
-    };
-    let cols = taps(dw, u.w, sx);
-    let rows = taps(dh, u.h, sy);
-    let mut ou = Plane::zeros(dw, dh);
-    let mut ov = Plane::zeros(dw, dh);
-    let sw = u.w;
+    let rows = resize_taps(dh, u.h, sy);
+    let h = ResizeRows::new(u, v, dw, &rows);
     ou.data
         .par_chunks_mut(dw)
         .zip(ov.data.par_chunks_mut(dw))
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|((ru, rv), &(y0, y1, fy))| {
-            let (u0, u1) = (
-                &u.data[y0 * sw..(y0 + 1) * sw],
-                &u.data[y1 * sw..(y1 + 1) * sw],
-            );
-            let (v0, v1) = (
-                &v.data[y0 * sw..(y0 + 1) * sw],
-                &v.data[y1 * sw..(y1 + 1) * sw],
-            );
-            for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
-                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
-                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
-                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
-                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
-                *pu = (tu + fy * (bu - tu)) * scale_u;
-                *pv = (tv + fy * (bv - tv)) * scale_v;
+            let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
+            for x in 0..dw {
+                let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
+                ru[x] = (tu + fy * (bu - tu)) * scale_u;
+                rv[x] = (tv + fy * (bv - tv)) * scale_v;
             }
         });
     (ou, ov)
@@ -284,35 +337,15 @@ pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Ve
     let sx = u.w as f32 / dw as f32;
     let sy = u.h as f32 / dh as f32;
     let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
-    let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
-        (0..n_dst)
-            .map(|d| {
-                let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
-                let i0 = p as usize;
-                (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
-            })
-            .collect()
-    };
-    let cols = taps(dw, u.w, sx);
-    let rows = taps(dh, u.h, sy);
-    let sw = u.w;
+    let rows = resize_taps(dh, u.h, sy);
+    let h = ResizeRows::new(u, v, dw, &rows);
     out.par_chunks_mut(dw)
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|(row, &(y0, y1, fy))| {
-            let (u0, u1) = (
-                &u.data[y0 * sw..(y0 + 1) * sw],
-                &u.data[y1 * sw..(y1 + 1) * sw],
-            );
-            let (v0, v1) = (
-                &v.data[y0 * sw..(y0 + 1) * sw],
-                &v.data[y1 * sw..(y1 + 1) * sw],
-            );
-            for (o, &(x0, x1, fx)) in row.iter_mut().zip(&cols) {
-                let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
-                let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
-                let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
-                let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+            let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
+            for (x, o) in row.iter_mut().enumerate() {
+                let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
                 *o = [
                     (tu + fy * (bu - tu)) * scale_u,
                     (tv + fy * (bv - tv)) * scale_v,
@@ -381,6 +414,140 @@ mod tests {
         let d = p.downsample2();
         assert_eq!((d.w, d.h), (2, 1));
         assert!((d.data[0] - (0.0 + 3.0 + 5.0 + 8.0) / 4.0).abs() < 1e-6);
+    }
+
+    // The direct two-dimensional interpolation the separable resize replaced, kept as the
+    // reference it must equal bit for bit.
+    /// Bilinear resize of a flow (u, v planes) to `dw × dh`, scaling vectors by the size ratio.
+    /// Pixel centres are aligned (`x_src = (x_dst + 0.5) · sw/dw − 0.5`), as in an image resize.
+    fn resize_flow_direct(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane) {
+        let sx = u.w as f32 / dw as f32;
+        let sy = u.h as f32 / dh as f32;
+        let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+        // Source columns and weights are the same for every row: compute them once.
+        let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+            (0..n_dst)
+                .map(|d| {
+                    let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                    let i0 = p as usize;
+                    (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+                })
+                .collect()
+        };
+        let cols = taps(dw, u.w, sx);
+        let rows = taps(dh, u.h, sy);
+        let mut ou = Plane::zeros(dw, dh);
+        let mut ov = Plane::zeros(dw, dh);
+        let sw = u.w;
+        ou.data
+            .par_chunks_mut(dw)
+            .zip(ov.data.par_chunks_mut(dw))
+            .zip(rows.par_iter())
+            .with_min_len(min_rows(dw))
+            .for_each(|((ru, rv), &(y0, y1, fy))| {
+                let (u0, u1) = (
+                    &u.data[y0 * sw..(y0 + 1) * sw],
+                    &u.data[y1 * sw..(y1 + 1) * sw],
+                );
+                let (v0, v1) = (
+                    &v.data[y0 * sw..(y0 + 1) * sw],
+                    &v.data[y1 * sw..(y1 + 1) * sw],
+                );
+                for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
+                    let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                    let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                    let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                    let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                    *pu = (tu + fy * (bu - tu)) * scale_u;
+                    *pv = (tv + fy * (bv - tv)) * scale_v;
+                }
+            });
+        (ou, ov)
+    }
+
+    /// [`resize_flow_direct`] into interleaved `[u, v]` vectors (the layout of `FlowField`).
+    fn resize_flow_interleaved_direct(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Vec<[f32; 2]> {
+        let mut out = vec![[0.0f32; 2]; dw * dh];
+        if dw == 0 || dh == 0 || u.w == 0 || u.h == 0 {
+            return out;
+        }
+        let sx = u.w as f32 / dw as f32;
+        let sy = u.h as f32 / dh as f32;
+        let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
+        let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
+            (0..n_dst)
+                .map(|d| {
+                    let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
+                    let i0 = p as usize;
+                    (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
+                })
+                .collect()
+        };
+        let cols = taps(dw, u.w, sx);
+        let rows = taps(dh, u.h, sy);
+        let sw = u.w;
+        out.par_chunks_mut(dw)
+            .zip(rows.par_iter())
+            .with_min_len(min_rows(dw))
+            .for_each(|(row, &(y0, y1, fy))| {
+                let (u0, u1) = (
+                    &u.data[y0 * sw..(y0 + 1) * sw],
+                    &u.data[y1 * sw..(y1 + 1) * sw],
+                );
+                let (v0, v1) = (
+                    &v.data[y0 * sw..(y0 + 1) * sw],
+                    &v.data[y1 * sw..(y1 + 1) * sw],
+                );
+                for (o, &(x0, x1, fx)) in row.iter_mut().zip(&cols) {
+                    let tu = u0[x0] + fx * (u0[x1] - u0[x0]);
+                    let bu = u1[x0] + fx * (u1[x1] - u1[x0]);
+                    let tv = v0[x0] + fx * (v0[x1] - v0[x0]);
+                    let bv = v1[x0] + fx * (v1[x1] - v1[x0]);
+                    *o = [
+                        (tu + fy * (bu - tu)) * scale_u,
+                        (tv + fy * (bv - tv)) * scale_v,
+                    ];
+                }
+            });
+        out
+    }
+
+    #[test]
+    fn the_separable_resize_equals_the_direct_one_bit_for_bit() {
+        let mut seed = 12345u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 40.0
+        };
+        for (sw, sh, dw, dh) in [
+            (160, 120, 640, 480),
+            (40, 30, 80, 60),
+            (41, 31, 83, 61),
+            (7, 5, 640, 3),
+            (80, 60, 33, 17),
+            (1, 1, 5, 4),
+            (3, 9, 1, 1),
+        ] {
+            let mut u = Plane::zeros(sw, sh);
+            let mut v = Plane::zeros(sw, sh);
+            u.data.iter_mut().for_each(|x| *x = rnd());
+            v.data.iter_mut().for_each(|x| *x = rnd());
+            let (ru, rv) = resize_flow(&u, &v, dw, dh);
+            let (eu, ev) = resize_flow_direct(&u, &v, dw, dh);
+            let bits = |p: &Plane| p.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&ru), bits(&eu), "u, {sw}×{sh} → {dw}×{dh}");
+            assert_eq!(bits(&rv), bits(&ev), "v, {sw}×{sh} → {dw}×{dh}");
+            let inter = resize_flow_interleaved(&u, &v, dw, dh);
+            let direct = resize_flow_interleaved_direct(&u, &v, dw, dh);
+            let flat = |f: &[[f32; 2]]| f.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                flat(&inter),
+                flat(&direct),
+                "interleaved, {sw}×{sh} → {dw}×{dh}"
+            );
+        }
     }
 
     #[test]

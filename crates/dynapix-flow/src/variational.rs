@@ -282,8 +282,14 @@ fn merge_rb(lay: &RbLayout, src: &[Vec<f32>; 2], dst: &mut Plane) {
             } else {
                 (&src[1][o..o + st - 1], &src[0][o..o + st - 1])
             };
-            for (x, val) in row.iter_mut().enumerate() {
-                *val = if x % 2 == 0 { even[x / 2] } else { odd[x / 2] };
+            // Pairs (even x, odd x), then the odd width's last pixel (an even x).
+            let mut pairs = row.chunks_exact_mut(2);
+            for ((pair, &e), &o) in (&mut pairs).zip(even).zip(odd) {
+                pair[0] = e;
+                pair[1] = o;
+            }
+            if let [last] = pairs.into_remainder() {
+                *last = even[w / 2];
             }
         });
 }
@@ -568,6 +574,27 @@ mod tests {
             }
         }
         p
+    }
+
+    #[test]
+    fn merging_the_colours_puts_every_pixel_where_the_layout_says() {
+        for (w, h) in [(1, 1), (2, 3), (7, 4), (8, 5), (161, 3)] {
+            let lay = RbLayout::new(w, h);
+            let src = [
+                (0..lay.len()).map(|i| i as f32).collect::<Vec<_>>(),
+                (0..lay.len())
+                    .map(|i| -(i as f32) - 1.0)
+                    .collect::<Vec<_>>(),
+            ];
+            let mut dst = Plane::zeros(w, h);
+            merge_rb(&lay, &src, &mut dst);
+            for y in 0..h {
+                for x in 0..w {
+                    let want = src[(x + y) % 2][(y + 1) * lay.stride + x / 2 + 1];
+                    assert_eq!(dst.data[y * w + x], want, "({x}, {y}) of {w}×{h}");
+                }
+            }
+        }
     }
 
     #[test]
