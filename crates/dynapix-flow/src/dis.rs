@@ -346,6 +346,30 @@ fn load_template(ctx: &LevelCtx, px: usize, py: usize) -> Template {
     }
 }
 
+/// The templates of all patches, row-major (patch row `r`, column `c` at `r · xs.len() + c`).
+fn templates(ctx: &LevelCtx, xs: &[usize], ys: &[usize]) -> Vec<Template> {
+    let nx = xs.len();
+    let empty = Template {
+        hinv: [0.0; 3],
+        sum_gx: 0.0,
+        sum_gy: 0.0,
+        textured: false,
+    };
+    let mut out = vec![empty; nx * ys.len()];
+    if nx == 0 {
+        return out;
+    }
+    out.par_chunks_mut(nx)
+        .zip(ys.par_iter())
+        .with_min_len(min_rows(nx * ctx.ps * ctx.ps))
+        .for_each(|(row, &py)| {
+            for (t, &px) in row.iter_mut().zip(xs) {
+                *t = load_template(ctx, px, py);
+            }
+        });
+    out
+}
+
 /// Clamps a displacement so the patch stays inside the padded image B.
 #[inline(always)]
 fn clamp_disp(ctx: &LevelCtx, px: usize, py: usize, u: f32, v: f32) -> (f32, f32) {
@@ -681,6 +705,7 @@ fn sweep_band(
     xs: &[usize],
     ys: &[usize],
     row0: usize,
+    tmpl: &[Template],
     su: &mut [f32],
     sv: &mut [f32],
     forward: bool,
@@ -690,10 +715,10 @@ fn sweep_band(
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked at run time just above).
-        unsafe { sweep_band_avx2(ctx, xs, ys, row0, su, sv, forward, iters, propagate) };
+        unsafe { sweep_band_avx2(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate) };
         return;
     }
-    sweep_band_impl::<false>(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+    sweep_band_impl::<false>(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -704,13 +729,14 @@ fn sweep_band_avx2(
     xs: &[usize],
     ys: &[usize],
     row0: usize,
+    tmpl: &[Template],
     su: &mut [f32],
     sv: &mut [f32],
     forward: bool,
     iters: usize,
     propagate: bool,
 ) {
-    sweep_band_impl::<true>(ctx, xs, ys, row0, su, sv, forward, iters, propagate);
+    sweep_band_impl::<true>(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate);
 }
 
 /// One sweep over a band of patch rows. `forward` goes left-to-right/top-down and proposes
@@ -722,6 +748,7 @@ fn sweep_band_impl<const AVX: bool>(
     xs: &[usize],
     ys: &[usize],
     row0: usize,
+    tmpl: &[Template],
     su: &mut [f32],
     sv: &mut [f32],
     forward: bool,
@@ -740,7 +767,7 @@ fn sweep_band_impl<const AVX: bool>(
             let (mut bu, mut bv) = clamp_disp(ctx, px, py, su[idx], sv[idx]);
             su[idx] = bu;
             sv[idx] = bv;
-            let t = load_template(ctx, px, py);
+            let t = tmpl[idx];
             if !t.textured && !propagate {
                 continue;
             }
@@ -820,20 +847,24 @@ fn dis_level(a: &Plane, b: &Plane, u: &mut Plane, v: &mut Plane, p: &DisParams) 
     } else {
         &[true]
     };
+    // Each patch's template depends on image A only: made once, used by both sweeps.
+    let tmpl = templates(&ctx, &xs, &ys);
     let total = p.grad_descent_iterations;
     for (k, &forward) in passes.iter().enumerate() {
         // Split the iterations over the sweeps so the total matches the parameter.
         let iters = total / passes.len() + usize::from(k < total % passes.len());
         su.par_chunks_mut(band)
             .zip(sv.par_chunks_mut(band))
+            .zip(tmpl.par_chunks(band))
             .enumerate()
-            .for_each(|(bi, (bu, bv))| {
+            .for_each(|(bi, ((bu, bv), bt))| {
                 let row0 = bi * band_rows;
                 sweep_band(
                     &ctx,
                     &xs,
                     &ys,
                     row0,
+                    bt,
                     bu,
                     bv,
                     forward,
@@ -1078,10 +1109,11 @@ mod tests {
         let init: Vec<f32> = (0..n).map(|i| (i % 7) as f32 * 0.3 - 0.9).collect();
         let (mut u1, mut v1) = (init.clone(), init.clone());
         let (mut u2, mut v2) = (init.clone(), init);
+        let t = templates(&ctx, &xs, &ys);
         for forward in [true, false] {
-            sweep_band_impl::<false>(&ctx, &xs, &ys, 0, &mut u1, &mut v1, forward, 12, true);
+            sweep_band_impl::<false>(&ctx, &xs, &ys, 0, &t, &mut u1, &mut v1, forward, 12, true);
             // SAFETY: AVX2 support was checked above.
-            unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &mut u2, &mut v2, forward, 12, true) };
+            unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &t, &mut u2, &mut v2, forward, 12, true) };
         }
         assert_eq!((u1, v1), (u2, v2));
     }
