@@ -451,6 +451,50 @@ impl Input {
         })
     }
 
+    /// [`Input::stream`] with `readers` reader threads: reader `r` loads the frames
+    /// `r, r + readers, …` with its own `make_load()`, each up to `ahead` frames before
+    /// `consume` takes them, so the loading of consecutive frames overlaps when one reader
+    /// cannot keep up (decoding, weight maps, feature extraction of a SLAM pass). `consume`
+    /// still takes every frame in order, so the result depends only on what `load` returns
+    /// for each frame, never on the number of readers or on timing. The first error of
+    /// `consume` stops the stream and is returned (each reader stops at its next frame).
+    pub fn stream_parallel<T: Send, L, E>(
+        &self,
+        ahead: usize,
+        readers: usize,
+        make_load: impl Fn() -> L,
+        mut consume: impl FnMut(usize, T) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E>
+    where
+        L: FnMut(usize) -> T + Send,
+    {
+        let n = self.len();
+        let readers = readers.clamp(1, n.max(1));
+        std::thread::scope(|scope| {
+            let mut rxs = Vec::with_capacity(readers);
+            for r in 0..readers {
+                let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, T)>(ahead.max(1));
+                let mut load = make_load();
+                scope.spawn(move || {
+                    for i in (r..n).step_by(readers) {
+                        if tx.send((i, load(i))).is_err() {
+                            break;
+                        }
+                    }
+                });
+                rxs.push(rx);
+            }
+            for i in 0..n {
+                let Ok((j, item)) = rxs[i % readers].recv() else {
+                    break;
+                };
+                debug_assert_eq!(i, j, "reader {} sent frame {j} for {i}", i % readers);
+                consume(i, item)?;
+            }
+            Ok(())
+        })
+    }
+
     /// The colour image and depth (metres) of frame `i`. A file that cannot be used
     /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
     /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.

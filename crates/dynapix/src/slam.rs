@@ -430,6 +430,9 @@ fn decode(
     }
 }
 
+/// Reader threads of a SLAM pass ([`Input::stream_parallel`]).
+const PASS_READERS: usize = 2;
+
 /// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
 /// masks named like the rgb images), reporting progress as `label`.
 ///
@@ -447,10 +450,17 @@ pub fn run_pass(
 ) -> Result<PassOutput> {
     let n = input.len();
     let task = Task::begin(progress, label, n);
-    let mut stage = session.feature_stage();
-    let fed = input.stream(
-        4,
-        |i| decode(input, i, weights, masks, &mut stage),
+    let stage = session.feature_stage();
+    // Two readers: one frame's decoding, weight map and feature extraction overlap the
+    // next one's (a single reader was the pass's bottleneck, not tracking). Each has its
+    // own copy of the extraction, which depends on nothing but the frame.
+    let fed = input.stream_parallel(
+        2,
+        PASS_READERS,
+        || {
+            let mut stage = stage.clone();
+            move |i| decode(input, i, weights, masks, &mut stage)
+        },
         |_, d| -> Result<()> {
             let prepared = match d.images {
                 Ok(images) => images,

@@ -176,6 +176,66 @@ fn streamed_frames_come_in_order_and_an_error_stops_the_stream() {
 }
 
 #[test]
+fn a_stream_with_several_readers_gives_every_frame_in_order() {
+    let seq = sequence();
+    let input = open(seq, &Config::default());
+    let n = input.len();
+    for readers in [1, 2, 3] {
+        // Each reader has its own loader (here: a counter of the frames it loaded).
+        let made = std::sync::atomic::AtomicUsize::new(0);
+        let mut seen = Vec::new();
+        input
+            .stream_parallel(
+                2,
+                readers,
+                || {
+                    made.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                    let mut mine = 0usize;
+                    move |i: usize| {
+                        mine += 1;
+                        // Uneven loading times, so the readers finish out of order.
+                        if i % 3 == 0 {
+                            std::thread::sleep(std::time::Duration::from_millis(1));
+                        }
+                        (i, mine)
+                    }
+                },
+                |i, (j, mine)| -> Result<(), String> {
+                    assert_eq!(i, j);
+                    // Reader i % readers loads every readers-th frame, in order.
+                    assert_eq!(mine, i / readers + 1, "frame {i}, {readers} readers");
+                    seen.push(i);
+                    Ok(())
+                },
+            )
+            .unwrap();
+        assert_eq!(seen, (0..n).collect::<Vec<_>>());
+        assert_eq!(made.load(std::sync::atomic::Ordering::SeqCst), readers);
+    }
+    // The consumer's first error stops every reader soon after.
+    let loaded = std::sync::atomic::AtomicUsize::new(0);
+    let err = input
+        .stream_parallel(
+            2,
+            2,
+            || {
+                |i: usize| {
+                    loaded.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                    i
+                }
+            },
+            |i, _| if i == 5 { Err(i) } else { Ok(()) },
+        )
+        .unwrap_err();
+    assert_eq!(err, 5);
+    let read = loaded.load(std::sync::atomic::Ordering::SeqCst);
+    assert!(
+        (6..=12).contains(&read),
+        "{read} frames read for a stream stopped at frame 5"
+    );
+}
+
+#[test]
 fn a_stream_shows_the_next_frame_only_when_it_has_arrived() {
     let seq = sequence();
     let input = open(seq, &Config::default());
