@@ -194,7 +194,7 @@ fn a_stream_with_several_readers_gives_every_frame_in_order() {
                     move |i: usize| {
                         mine += 1;
                         // Uneven loading times, so the readers finish out of order.
-                        if i % 3 == 0 {
+                        if i.is_multiple_of(3) {
                             std::thread::sleep(std::time::Duration::from_millis(1));
                         }
                         (i, mine)
