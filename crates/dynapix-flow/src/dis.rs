@@ -1081,6 +1081,38 @@ mod tests {
         }
     }
 
+    /// One pyramid level of a textured pair with a smooth non-rigid motion, for the kernel
+    /// tests (8×8 patches, mean normalisation, OpenCV's step).
+    struct TestLevel {
+        a: Plane,
+        ax: Plane,
+        ay: Plane,
+        bp: Plane,
+    }
+
+    impl TestLevel {
+        fn new(w: u32, h: u32) -> Self {
+            let b = pairs::texture(w, h);
+            let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
+            let a = Plane::from_gray(&a);
+            let (ax, ay) = a.sobel();
+            let bp = Plane::from_gray(&b).padded(SEARCH_BORDER);
+            Self { a, ax, ay, bp }
+        }
+
+        fn ctx(&self) -> LevelCtx<'_> {
+            LevelCtx {
+                a: &self.a,
+                ax: &self.ax,
+                ay: &self.ay,
+                bp: &self.bp,
+                ps: 8,
+                mean_norm: true,
+                step: 0.125,
+            }
+        }
+    }
+
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_and_baseline_sweeps_agree_bit_for_bit() {
@@ -1089,20 +1121,8 @@ mod tests {
             return;
         }
         let (w, h) = (96, 72);
-        let b = pairs::texture(w, h);
-        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
-        let (pa, pb) = (Plane::from_gray(&a), Plane::from_gray(&b));
-        let (ax, ay) = pa.sobel();
-        let bp = pb.padded(SEARCH_BORDER);
-        let ctx = LevelCtx {
-            a: &pa,
-            ax: &ax,
-            ay: &ay,
-            bp: &bp,
-            ps: 8,
-            mean_norm: true,
-            step: 0.125,
-        };
+        let level = TestLevel::new(w, h);
+        let ctx = level.ctx();
         let xs = patch_origins(w as usize, 8, 3);
         let ys = patch_origins(h as usize, 8, 3);
         let n = xs.len() * ys.len();
@@ -1126,20 +1146,8 @@ mod tests {
             return;
         }
         let (w, h) = (97, 70);
-        let b = pairs::texture(w, h);
-        let a = pairs::make_a(&b, &pairs::smooth_nonrigid(w, h, 3.0)).unwrap();
-        let (pa, pb) = (Plane::from_gray(&a), Plane::from_gray(&b));
-        let (ax, ay) = pa.sobel();
-        let bp = pb.padded(SEARCH_BORDER);
-        let ctx = LevelCtx {
-            a: &pa,
-            ax: &ax,
-            ay: &ay,
-            bp: &bp,
-            ps: 8,
-            mean_norm: true,
-            step: 0.125,
-        };
+        let level = TestLevel::new(w, h);
+        let ctx = level.ctx();
         let xs = patch_origins(w as usize, 8, 3);
         let ys = patch_origins(h as usize, 8, 3);
         let n = xs.len() * ys.len();
