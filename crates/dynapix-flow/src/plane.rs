@@ -424,18 +424,9 @@ mod tests {
         let sx = u.w as f32 / dw as f32;
         let sy = u.h as f32 / dh as f32;
         let (scale_u, scale_v) = (1.0 / sx, 1.0 / sy);
-        // Source columns and weights are the same for every row: compute them once.
-        let taps = |n_dst: usize, n_src: usize, s: f32| -> Vec<(usize, usize, f32)> {
-            (0..n_dst)
-                .map(|d| {
-                    let p = ((d as f32 + 0.5) * s - 0.5).clamp(0.0, (n_src - 1) as f32);
-                    let i0 = p as usize;
-                    (i0, (i0 + 1).min(n_src - 1), p - i0 as f32)
-                })
-                .collect()
-        };
-        let cols = taps(dw, u.w, sx);
-        let rows = taps(dh, u.h, sy);
+        // The taps are unchanged by the separable version: shared with it.
+        let cols = resize_taps(dw, u.w, sx);
+        let rows = resize_taps(dh, u.h, sy);
         let mut ou = Plane::zeros(dw, dh);
         let mut ov = Plane::zeros(dw, dh);
         let sw = u.w;
