@@ -17,6 +17,28 @@ pub(crate) fn min_rows(w: usize) -> usize {
     (MIN_PAR_PIXELS / w.max(1)).max(1)
 }
 
+/// Runs `f` compiled for AVX2 when `AVX` is true and the CPU has AVX2, else as it is.
+///
+/// A closure is compiled on its own, without the target features of the function that
+/// defines it, so a row closure handed to rayon from a `#[target_feature]` function runs the
+/// baseline build (SSE2, four lanes at best). Called inside such a closure, this trampoline
+/// inlines the closure's body into a function built for AVX2 (eight lanes). Element-wise
+/// `f32` arithmetic without fused multiply-add rounds the same in either build, so the
+/// results are the same bit for bit; `AVX = false` is the reference the tests compare with.
+#[inline(always)]
+pub(crate) fn simd<const AVX: bool, R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if AVX && std::is_x86_feature_detected!("avx2") {
+        #[target_feature(enable = "avx2")]
+        fn avx2<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { avx2(f) };
+    }
+    f()
+}
+
 /// A row-major single-channel `f32` image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plane {

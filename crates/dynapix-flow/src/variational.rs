@@ -9,7 +9,7 @@
 //! solve the resulting linear system. Red-black ordering makes each half-sweep independent
 //! per pixel, so the row-parallel sweeps give the same result for any thread count.
 
-use crate::plane::{MIN_PAR_PIXELS, Plane, min_rows, warp_plane};
+use crate::plane::{MIN_PAR_PIXELS, Plane, min_rows, simd, warp_plane};
 use rayon::prelude::*;
 
 /// Parameters of the variational refinement (defaults = OpenCV's DIS/VariationalRefinement).
@@ -194,28 +194,22 @@ impl RbSystem {
     }
 }
 
-/// Refines the flow `(u, v)` from `i0` to `i1` in place.
+/// Refines the flow `(u, v)` from `i0` to `i1` in place. The per-row loops run compiled
+/// for AVX2 when the CPU has it ([`simd`]): element-wise `f32` arithmetic without fused
+/// multiply-add and reductions kept in order, so the same bits as the baseline build (test
+/// `avx2_refinement_equals_baseline`).
 pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &VariationalParams) {
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { refine_avx2(i0, i1, u, v, p) };
-        return;
-    }
-    refine_body(i0, i1, u, v, p);
-}
-
-/// [`refine_body`] compiled for AVX2, its helpers inlined (and its parallel closures
-/// inheriting the feature). Element-wise `f32` arithmetic without FMA and reductions kept
-/// in order: the same bits as the baseline build (test `avx2_refinement_equals_baseline`).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn refine_avx2(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &VariationalParams) {
-    refine_body(i0, i1, u, v, p);
+    refine_body::<true>(i0, i1, u, v, p);
 }
 
 #[inline(always)]
-fn refine_body(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &VariationalParams) {
+fn refine_body<const AVX: bool>(
+    i0: &Plane,
+    i1: &Plane,
+    u: &mut Plane,
+    v: &mut Plane,
+    p: &VariationalParams,
+) {
     if p.fixed_point_iterations == 0 || i0.w == 0 || i0.h == 0 {
         return;
     }
@@ -234,7 +228,7 @@ fn refine_body(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variati
     for _ in 0..p.fixed_point_iterations {
         merge_rb(&lay, &du, &mut du_full);
         merge_rb(&lay, &dv, &mut dv_full);
-        smoothness_weights(u, v, &du_full, &dv_full, p, &mut cu, &mut cv, &mut ws);
+        smoothness_weights::<AVX>(u, v, &du_full, &dv_full, p, &mut cu, &mut cv, &mut ws);
         let env = BuildEnv {
             lay: &lay,
             dc: &dc,
@@ -245,10 +239,10 @@ fn refine_body(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &Variati
             ws: &ws,
             p,
         };
-        env.fill_all(&mut sys);
+        env.fill_all::<AVX>(&mut sys);
         for _ in 0..p.sor_iterations {
             for colour in 0..2 {
-                sor_half_sweep(&lay, colour, &sys, p.omega, &mut du, &mut dv);
+                sor_half_sweep::<AVX>(&lay, colour, &sys, p.omega, &mut du, &mut dv);
             }
         }
     }
@@ -297,7 +291,7 @@ fn merge_rb(lay: &RbLayout, src: &[Vec<f32>; 2], dst: &mut Plane) {
 /// Robust smoothness weight per pixel from the forward differences of `w + dw`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn smoothness_weights(
+fn smoothness_weights<const AVX: bool>(
     u: &Plane,
     v: &Plane,
     du: &Plane,
@@ -326,18 +320,23 @@ fn smoothness_weights(
         .enumerate()
         .with_min_len(min_rows(w))
         .for_each(|(y, row)| {
-            let o = y * w;
-            let yn = if y + 1 < h { o + w } else { o };
-            let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
-            let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
-            for x in 0..w {
-                let xn = if x + 1 < w { x + 1 } else { x };
-                let ux = u0[xn] - u0[x];
-                let vx = v0[xn] - v0[x];
-                let uy = u1[x] - u0[x];
-                let vy = v1[x] - v0[x];
-                row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
-            }
+            simd::<AVX, _>(
+                #[inline(always)]
+                || {
+                    let o = y * w;
+                    let yn = if y + 1 < h { o + w } else { o };
+                    let (u0, v0) = (&cu.data[o..o + w], &cv.data[o..o + w]);
+                    let (u1, v1) = (&cu.data[yn..yn + w], &cv.data[yn..yn + w]);
+                    for x in 0..w {
+                        let xn = if x + 1 < w { x + 1 } else { x };
+                        let ux = u0[xn] - u0[x];
+                        let vx = v0[xn] - v0[x];
+                        let uy = u1[x] - u0[x];
+                        let vy = v1[x] - v0[x];
+                        row[x] = alpha2 / (ux * ux + uy * uy + vx * vx + vy * vy + eps2).sqrt();
+                    }
+                },
+            )
         });
 }
 
@@ -388,7 +387,7 @@ fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
 impl BuildEnv<'_> {
     /// Fills both colours' systems, rows in parallel.
     #[inline(always)]
-    fn fill_all(&self, sys: &mut [RbSystem; 2]) {
+    fn fill_all<const AVX: bool>(&self, sys: &mut [RbSystem; 2]) {
         let (st, h, w) = (self.lay.stride, self.lay.h, self.lay.w);
         let [s0, s1] = sys;
         let mut jobs: Vec<(RowMut<'_>, RowMut<'_>)> = rows_mut(s0, st, h)
@@ -401,15 +400,33 @@ impl BuildEnv<'_> {
             .for_each_init(
                 || vec![0.0f32; 10 * w],
                 |scratch, (y, (r0, r1))| {
-                    // Data blocks, the row-order system, and a row of zeros.
-                    let (data, rest) = scratch.split_at_mut(5 * w);
-                    let (full, zeros) = rest.split_at_mut(4 * w);
-                    self.data_row(y, data);
-                    self.system_row(y, data, zeros, full);
-                    self.split_row(0, y, r0, data, full);
-                    self.split_row(1, y, r1, data, full);
+                    // A one-call closure, so it is inlined into the AVX2 build with the
+                    // row's work.
+                    simd::<AVX, _>(
+                        #[inline(always)]
+                        || self.fill_row_pair(y, scratch, r0, r1),
+                    )
                 },
             );
+    }
+
+    /// Fills row y of both colours' systems; `scratch` holds 10 × w values.
+    #[inline(always)]
+    fn fill_row_pair(
+        &self,
+        y: usize,
+        scratch: &mut [f32],
+        r0: &mut RowMut<'_>,
+        r1: &mut RowMut<'_>,
+    ) {
+        let w = self.lay.w;
+        // Data blocks, the row-order system, and a row of zeros.
+        let (data, rest) = scratch.split_at_mut(5 * w);
+        let (full, zeros) = rest.split_at_mut(4 * w);
+        self.data_row(y, data);
+        self.system_row(y, data, zeros, full);
+        self.split_row(0, y, r0, data, full);
+        self.split_row(1, y, r1, data, full);
     }
 
     /// Data-term blocks (a11, a12, a22, b1, b2) of row y, contiguous so the robust weights
@@ -645,7 +662,7 @@ impl BuildEnv<'_> {
 /// parallel, and the zero padding makes the inner loop branch-free (a missing neighbour
 /// contributes weight × 0).
 #[inline(always)]
-fn sor_half_sweep(
+fn sor_half_sweep<const AVX: bool>(
     lay: &RbLayout,
     colour: usize,
     sys: &[RbSystem; 2],
@@ -669,36 +686,41 @@ fn sor_half_sweep(
         .enumerate()
         .with_min_len(min_rows(st))
         .for_each(|(y, (ru_row, rv_row))| {
-            let (sft, len) = lay.row(colour, y);
-            let o = (y + 1) * st;
-            // Other colour, padded indices: left neighbour of k at k + sft, right at
-            // k + sft + 1; upper/lower neighbours at k + 1 in rows y - 1 and y + 1.
-            let ou = &du_o[o..o + st];
-            let ov = &dv_o[o..o + st];
-            let (ou_up, ov_up) = (&du_o[o - st..o], &dv_o[o - st..o]);
-            let (ou_dn, ov_dn) = (&du_o[o + st..o + 2 * st], &dv_o[o + st..o + 2 * st]);
-            let c = o + 1;
-            let w_own = &s.ws[c..c + len];
-            let w_left = &ws_o[o + sft..o + sft + len];
-            let w_up = &ws_o[o - st + 1..o - st + 1 + len];
-            let (bu, bv, a12) = (&s.ru[c..c + len], &s.rv[c..c + len], &s.a12[c..c + len]);
-            let (i11, i22) = (&s.inv11[c..c + len], &s.inv22[c..c + len]);
-            let (ul, ur) = (&ou[sft..sft + len], &ou[sft + 1..sft + 1 + len]);
-            let (vl, vr) = (&ov[sft..sft + len], &ov[sft + 1..sft + 1 + len]);
-            let (uu, ud) = (&ou_up[1..1 + len], &ou_dn[1..1 + len]);
-            let (vu, vd) = (&ov_up[1..1 + len], &ov_dn[1..1 + len]);
-            let cur_u = &mut ru_row[1..1 + len];
-            let cur_v = &mut rv_row[1..1 + len];
-            for k in 0..len {
-                let nu = w_own[k] * (ur[k] + ud[k]) + w_left[k] * ul[k] + w_up[k] * uu[k];
-                let nv = w_own[k] * (vr[k] + vd[k]) + w_left[k] * vl[k] + w_up[k] * vu[k];
-                let (cu, cv) = (cur_u[k], cur_v[k]);
-                let new_u = (bu[k] + nu - a12[k] * cv) * i11[k];
-                let u1 = cu + omega * (new_u - cu);
-                let new_v = (bv[k] + nv - a12[k] * u1) * i22[k];
-                cur_u[k] = u1;
-                cur_v[k] = cv + omega * (new_v - cv);
-            }
+            simd::<AVX, _>(
+                #[inline(always)]
+                || {
+                    let (sft, len) = lay.row(colour, y);
+                    let o = (y + 1) * st;
+                    // Other colour, padded indices: left neighbour of k at k + sft, right at
+                    // k + sft + 1; upper/lower neighbours at k + 1 in rows y - 1 and y + 1.
+                    let ou = &du_o[o..o + st];
+                    let ov = &dv_o[o..o + st];
+                    let (ou_up, ov_up) = (&du_o[o - st..o], &dv_o[o - st..o]);
+                    let (ou_dn, ov_dn) = (&du_o[o + st..o + 2 * st], &dv_o[o + st..o + 2 * st]);
+                    let c = o + 1;
+                    let w_own = &s.ws[c..c + len];
+                    let w_left = &ws_o[o + sft..o + sft + len];
+                    let w_up = &ws_o[o - st + 1..o - st + 1 + len];
+                    let (bu, bv, a12) = (&s.ru[c..c + len], &s.rv[c..c + len], &s.a12[c..c + len]);
+                    let (i11, i22) = (&s.inv11[c..c + len], &s.inv22[c..c + len]);
+                    let (ul, ur) = (&ou[sft..sft + len], &ou[sft + 1..sft + 1 + len]);
+                    let (vl, vr) = (&ov[sft..sft + len], &ov[sft + 1..sft + 1 + len]);
+                    let (uu, ud) = (&ou_up[1..1 + len], &ou_dn[1..1 + len]);
+                    let (vu, vd) = (&ov_up[1..1 + len], &ov_dn[1..1 + len]);
+                    let cur_u = &mut ru_row[1..1 + len];
+                    let cur_v = &mut rv_row[1..1 + len];
+                    for k in 0..len {
+                        let nu = w_own[k] * (ur[k] + ud[k]) + w_left[k] * ul[k] + w_up[k] * uu[k];
+                        let nv = w_own[k] * (vr[k] + vd[k]) + w_left[k] * vl[k] + w_up[k] * vu[k];
+                        let (cu, cv) = (cur_u[k], cur_v[k]);
+                        let new_u = (bu[k] + nu - a12[k] * cv) * i11[k];
+                        let u1 = cu + omega * (new_u - cu);
+                        let new_v = (bv[k] + nv - a12[k] * u1) * i22[k];
+                        cur_u[k] = u1;
+                        cur_v[k] = cv + omega * (new_v - cv);
+                    }
+                },
+            )
         });
 }
 
@@ -790,7 +812,7 @@ mod tests {
         let (mut u2, mut v2) = (u1.clone(), v1.clone());
         let p = VariationalParams::default();
         refine(&i0, &i1, &mut u1, &mut v1, &p);
-        refine_body(&i0, &i1, &mut u2, &mut v2, &p);
+        refine_body::<false>(&i0, &i1, &mut u2, &mut v2, &p);
         let bits = |a: &Plane| a.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&u1), bits(&u2));
         assert_eq!(bits(&v1), bits(&v2));
@@ -814,7 +836,7 @@ mod tests {
             let dc = data_coeffs(&i0, warp_plane(&i1, &u, &v), p.zeta);
             let (mut cu, mut cv, mut ws) =
                 (Plane::zeros(w, h), Plane::zeros(w, h), Plane::zeros(w, h));
-            smoothness_weights(&u, &v, &du, &dv, &p, &mut cu, &mut cv, &mut ws);
+            smoothness_weights::<false>(&u, &v, &du, &dv, &p, &mut cu, &mut cv, &mut ws);
             let lay = RbLayout::new(w, h);
             let env = BuildEnv {
                 lay: &lay,
@@ -827,7 +849,7 @@ mod tests {
                 p: &p,
             };
             let mut fast = [RbSystem::new(lay.len()), RbSystem::new(lay.len())];
-            env.fill_all(&mut fast);
+            env.fill_all::<true>(&mut fast);
             let mut slow = [RbSystem::new(lay.len()), RbSystem::new(lay.len())];
             let mut data = vec![0.0f32; 5 * w];
             let [s0, s1] = &mut slow;
