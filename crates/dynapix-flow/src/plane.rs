@@ -113,19 +113,24 @@ impl Plane {
             .enumerate()
             .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
-                let y0 = (2 * y).min(h - 1);
-                let y1 = (2 * y + 1).min(h - 1);
-                let r0 = &src[y0 * w..(y0 + 1) * w];
-                let r1 = &src[y1 * w..(y1 + 1) * w];
-                for (x, o) in row.iter_mut().enumerate() {
-                    let x0 = (2 * x).min(w - 1);
-                    let x1 = (2 * x + 1).min(w - 1);
-                    let s = u16::from(r0[x0])
-                        + u16::from(r0[x1])
-                        + u16::from(r1[x0])
-                        + u16::from(r1[x1]);
-                    *o = 0.25 * f32::from(s);
-                }
+                simd::<true, _>(
+                    #[inline(always)]
+                    || {
+                        let y0 = (2 * y).min(h - 1);
+                        let y1 = (2 * y + 1).min(h - 1);
+                        let r0 = &src[y0 * w..(y0 + 1) * w];
+                        let r1 = &src[y1 * w..(y1 + 1) * w];
+                        for (x, o) in row.iter_mut().enumerate() {
+                            let x0 = (2 * x).min(w - 1);
+                            let x1 = (2 * x + 1).min(w - 1);
+                            let s = u16::from(r0[x0])
+                                + u16::from(r0[x1])
+                                + u16::from(r1[x0])
+                                + u16::from(r1[x1]);
+                            *o = 0.25 * f32::from(s);
+                        }
+                    },
+                );
             });
         out
     }
@@ -141,52 +146,51 @@ impl Plane {
             .enumerate()
             .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
-                let y0 = (2 * y).min(self.h - 1);
-                let y1 = (2 * y + 1).min(self.h - 1);
-                let r0 = &self.data[y0 * self.w..(y0 + 1) * self.w];
-                let r1 = &self.data[y1 * self.w..(y1 + 1) * self.w];
-                for (x, o) in row.iter_mut().enumerate() {
-                    let x0 = (2 * x).min(self.w - 1);
-                    let x1 = (2 * x + 1).min(self.w - 1);
-                    *o = 0.25 * (r0[x0] + r0[x1] + r1[x0] + r1[x1]);
-                }
+                simd::<true, _>(
+                    #[inline(always)]
+                    || {
+                        let y0 = (2 * y).min(self.h - 1);
+                        let y1 = (2 * y + 1).min(self.h - 1);
+                        let r0 = &self.data[y0 * self.w..(y0 + 1) * self.w];
+                        let r1 = &self.data[y1 * self.w..(y1 + 1) * self.w];
+                        for (x, o) in row.iter_mut().enumerate() {
+                            let x0 = (2 * x).min(self.w - 1);
+                            let x1 = (2 * x + 1).min(self.w - 1);
+                            *o = 0.25 * (r0[x0] + r0[x1] + r1[x0] + r1[x1]);
+                        }
+                    },
+                );
             });
         out
     }
 
     /// Sobel gradients divided by 8, i.e. in intensity units per pixel (replicated border).
     pub fn sobel(&self) -> (Plane, Plane) {
-        let (w, h) = (self.w, self.h);
-        let mut gx = Plane::zeros(w, h);
-        let mut gy = Plane::zeros(w, h);
-        gx.data
-            .par_chunks_mut(w)
-            .zip(gy.data.par_chunks_mut(w))
-            .enumerate()
-            .with_min_len(min_rows(w))
-            .for_each(|(y, (rx, ry))| {
-                let ym = y.saturating_sub(1);
-                let yp = (y + 1).min(h - 1);
-                let a = &self.data[ym * w..(ym + 1) * w];
-                let b = &self.data[y * w..(y + 1) * w];
-                let c = &self.data[yp * w..(yp + 1) * w];
-                for x in 0..w {
-                    let xm = x.saturating_sub(1);
-                    let xp = (x + 1).min(w - 1);
-                    let dx = (a[xp] - a[xm]) + 2.0 * (b[xp] - b[xm]) + (c[xp] - c[xm]);
-                    let dy = (c[xm] - a[xm]) + 2.0 * (c[x] - a[x]) + (c[xp] - a[xp]);
-                    rx[x] = dx * 0.125;
-                    ry[x] = dy * 0.125;
-                }
-            });
-        (gx, gy)
+        self.gradients::<true>(sobel_px, sobel_interior)
     }
 
     /// Central differences `(f(x+1) - f(x-1)) / 2` (one-sided halves at the border).
     pub fn central_diff(&self) -> (Plane, Plane) {
+        self.gradients::<true>(central_px, central_interior)
+    }
+
+    /// Both gradients of every pixel from its 3×3 neighbourhood (replicated border), rows in
+    /// parallel: `px` computes pixel x of a row from the rows above, at and below it (`a`,
+    /// `b`, `c`); `interior` does the same for pixels 1..w−1 on shifted slices, without
+    /// border logic, compiled for AVX2 when `AVX` ([`simd`]). Both must be the same
+    /// expressions, so every pixel gets the same bits either way.
+    #[inline(always)]
+    fn gradients<const AVX: bool>(
+        &self,
+        px: impl Fn(&[f32], &[f32], &[f32], usize) -> (f32, f32) + Sync,
+        interior: impl Fn(&[f32], &[f32], &[f32], &mut [f32], &mut [f32]) + Sync,
+    ) -> (Plane, Plane) {
         let (w, h) = (self.w, self.h);
         let mut gx = Plane::zeros(w, h);
         let mut gy = Plane::zeros(w, h);
+        if w == 0 {
+            return (gx, gy);
+        }
         gx.data
             .par_chunks_mut(w)
             .zip(gy.data.par_chunks_mut(w))
@@ -198,11 +202,14 @@ impl Plane {
                 let a = &self.data[ym * w..(ym + 1) * w];
                 let b = &self.data[y * w..(y + 1) * w];
                 let c = &self.data[yp * w..(yp + 1) * w];
-                for x in 0..w {
-                    let xm = x.saturating_sub(1);
-                    let xp = (x + 1).min(w - 1);
-                    rx[x] = 0.5 * (b[xp] - b[xm]);
-                    ry[x] = 0.5 * (c[x] - a[x]);
+                for x in [0, w - 1] {
+                    (rx[x], ry[x]) = px(a, b, c, x);
+                }
+                if w > 2 {
+                    simd::<AVX, _>(
+                        #[inline(always)]
+                        || interior(a, b, c, &mut rx[1..w - 1], &mut ry[1..w - 1]),
+                    );
                 }
             });
         (gx, gy)
@@ -247,6 +254,55 @@ impl Plane {
                 row[border + self.w..].fill(last);
             });
         out
+    }
+}
+
+/// Sobel gradients / 8 of pixel x of row `b` (rows `a` above, `c` below), replicated border.
+#[inline(always)]
+fn sobel_px(a: &[f32], b: &[f32], c: &[f32], x: usize) -> (f32, f32) {
+    let w = b.len();
+    let xm = x.saturating_sub(1);
+    let xp = (x + 1).min(w - 1);
+    let dx = (a[xp] - a[xm]) + 2.0 * (b[xp] - b[xm]) + (c[xp] - c[xm]);
+    let dy = (c[xm] - a[xm]) + 2.0 * (c[x] - a[x]) + (c[xp] - a[xp]);
+    (dx * 0.125, dy * 0.125)
+}
+
+/// [`sobel_px`] of pixels 1..w−1 into `rx`, `ry` (w − 2 values each).
+#[inline(always)]
+fn sobel_interior(a: &[f32], b: &[f32], c: &[f32], rx: &mut [f32], ry: &mut [f32]) {
+    let n = rx.len().min(ry.len());
+    let (am, a0, ap) = (&a[..n], &a[1..n + 1], &a[2..n + 2]);
+    let (bm, bp) = (&b[..n], &b[2..n + 2]);
+    let (cm, c0, cp) = (&c[..n], &c[1..n + 1], &c[2..n + 2]);
+    let (rx, ry) = (&mut rx[..n], &mut ry[..n]);
+    for i in 0..n {
+        let dx = (ap[i] - am[i]) + 2.0 * (bp[i] - bm[i]) + (cp[i] - cm[i]);
+        let dy = (cm[i] - am[i]) + 2.0 * (c0[i] - a0[i]) + (cp[i] - ap[i]);
+        rx[i] = dx * 0.125;
+        ry[i] = dy * 0.125;
+    }
+}
+
+/// Central differences of pixel x of row `b` (rows `a` above, `c` below), replicated border.
+#[inline(always)]
+fn central_px(a: &[f32], b: &[f32], c: &[f32], x: usize) -> (f32, f32) {
+    let w = b.len();
+    let xm = x.saturating_sub(1);
+    let xp = (x + 1).min(w - 1);
+    (0.5 * (b[xp] - b[xm]), 0.5 * (c[x] - a[x]))
+}
+
+/// [`central_px`] of pixels 1..w−1 into `rx`, `ry` (w − 2 values each).
+#[inline(always)]
+fn central_interior(a: &[f32], b: &[f32], c: &[f32], rx: &mut [f32], ry: &mut [f32]) {
+    let n = rx.len().min(ry.len());
+    let (a0, c0) = (&a[1..n + 1], &c[1..n + 1]);
+    let (bm, bp) = (&b[..n], &b[2..n + 2]);
+    let (rx, ry) = (&mut rx[..n], &mut ry[..n]);
+    for i in 0..n {
+        rx[i] = 0.5 * (bp[i] - bm[i]);
+        ry[i] = 0.5 * (c0[i] - a0[i]);
     }
 }
 
@@ -299,11 +355,18 @@ impl ResizeRows {
             .zip(used.par_iter())
             .with_min_len(min_rows(dw))
             .for_each(|((ru, rv), &y)| {
-                let (su, sv) = (&u.data[y * sw..(y + 1) * sw], &v.data[y * sw..(y + 1) * sw]);
-                for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols) {
-                    *pu = su[x0] + fx * (su[x1] - su[x0]);
-                    *pv = sv[x0] + fx * (sv[x1] - sv[x0]);
-                }
+                simd::<true, _>(
+                    #[inline(always)]
+                    || {
+                        let (su, sv) =
+                            (&u.data[y * sw..(y + 1) * sw], &v.data[y * sw..(y + 1) * sw]);
+                        for ((pu, pv), &(x0, x1, fx)) in ru.iter_mut().zip(rv.iter_mut()).zip(&cols)
+                        {
+                            *pu = su[x0] + fx * (su[x1] - su[x0]);
+                            *pv = sv[x0] + fx * (sv[x1] - sv[x0]);
+                        }
+                    },
+                );
             });
         Self {
             dw,
@@ -340,12 +403,17 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|((ru, rv), &(y0, y1, fy))| {
-            let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
-            for x in 0..dw {
-                let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
-                ru[x] = (tu + fy * (bu - tu)) * scale_u;
-                rv[x] = (tv + fy * (bv - tv)) * scale_v;
-            }
+            simd::<true, _>(
+                #[inline(always)]
+                || {
+                    let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
+                    for x in 0..dw {
+                        let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
+                        ru[x] = (tu + fy * (bu - tu)) * scale_u;
+                        rv[x] = (tv + fy * (bv - tv)) * scale_v;
+                    }
+                },
+            );
         });
     (ou, ov)
 }
@@ -365,14 +433,19 @@ pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Ve
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|(row, &(y0, y1, fy))| {
-            let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
-            for (x, o) in row.iter_mut().enumerate() {
-                let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
-                *o = [
-                    (tu + fy * (bu - tu)) * scale_u,
-                    (tv + fy * (bv - tv)) * scale_v,
-                ];
-            }
+            simd::<true, _>(
+                #[inline(always)]
+                || {
+                    let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
+                    for (x, o) in row.iter_mut().enumerate() {
+                        let (tu, bu, tv, bv) = (u0[x], u1[x], v0[x], v1[x]);
+                        *o = [
+                            (tu + fy * (bu - tu)) * scale_u,
+                            (tv + fy * (bv - tv)) * scale_v,
+                        ];
+                    }
+                },
+            );
         });
     out
 }
@@ -386,10 +459,15 @@ pub fn warp_plane(src: &Plane, u: &Plane, v: &Plane) -> Plane {
         .enumerate()
         .with_min_len(min_rows(w))
         .for_each(|(y, row)| {
-            let o = y * w;
-            for (x, px) in row.iter_mut().enumerate() {
-                *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
-            }
+            simd::<true, _>(
+                #[inline(always)]
+                || {
+                    let o = y * w;
+                    for (x, px) in row.iter_mut().enumerate() {
+                        *px = src.bilinear(x as f32 + u.data[o + x], y as f32 + v.data[o + x]);
+                    }
+                },
+            );
         });
     out
 }
@@ -406,6 +484,42 @@ mod tests {
             }
         }
         p
+    }
+
+    /// The gradients of pixel x of row b, from the rows around it.
+    type PixelGradient = fn(&[f32], &[f32], &[f32], usize) -> (f32, f32);
+
+    #[test]
+    fn gradients_equal_their_per_pixel_definitions() {
+        for (w, h) in [(1, 1), (2, 3), (3, 2), (9, 7), (33, 5)] {
+            let mut p = Plane::zeros(w, h);
+            for (i, x) in p.data.iter_mut().enumerate() {
+                *x = ((i * 37) % 101) as f32 * 1.7 - 40.0 + (i as f32 * 0.3).sin();
+            }
+            let px_all = |f: PixelGradient| {
+                let (mut gx, mut gy) = (Plane::zeros(w, h), Plane::zeros(w, h));
+                for y in 0..h {
+                    let row = |r: usize| &p.data[r * w..(r + 1) * w];
+                    let (a, b, c) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
+                    for x in 0..w {
+                        (gx.data[y * w + x], gy.data[y * w + x]) = f(a, b, c, x);
+                    }
+                }
+                (gx, gy)
+            };
+            let bits = |a: &Plane| a.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            for (got, want) in [
+                (p.sobel(), px_all(sobel_px)),
+                (p.central_diff(), px_all(central_px)),
+                (
+                    p.gradients::<false>(sobel_px, sobel_interior),
+                    px_all(sobel_px),
+                ),
+            ] {
+                assert_eq!(bits(&got.0), bits(&want.0), "{w}×{h}");
+                assert_eq!(bits(&got.1), bits(&want.1), "{w}×{h}");
+            }
+        }
     }
 
     #[test]
