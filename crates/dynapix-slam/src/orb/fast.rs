@@ -137,15 +137,58 @@ fn detect_roi_avx2(
 #[inline(always)]
 fn detect_roi_body(
     img: &Plane,
-    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    roi: (usize, usize, usize, usize),
     threshold: i32,
     scratch: &mut FastScratch,
     out: &mut Vec<Corner>,
 ) {
     out.clear();
+    if !scan(img, roi, threshold, scratch) {
+        return;
+    }
+    let rw = roi.2 - roi.0;
+    let sc = &scratch.scores;
+    for cand in &scratch.cands {
+        let (x, y, s) = (cand.x, cand.y, cand.score);
+        let mut keep = true;
+        'n: for ny in y - 1..=y + 1 {
+            for nx in x - 1..=x + 1 {
+                if (nx, ny) != (x, y) && sc[ny * rw + nx] >= s {
+                    keep = false;
+                    break 'n;
+                }
+            }
+        }
+        if keep {
+            out.push(*cand);
+        }
+    }
+    clear_scores(scratch, rw);
+}
+
+/// Resets the entries of `scratch.scores` that the last [`scan`] of a region `rw` wide wrote.
+#[inline(always)]
+fn clear_scores(scratch: &mut FastScratch, rw: usize) {
+    for cand in &scratch.cands {
+        scratch.scores[cand.y * rw + cand.x] = 0;
+    }
+}
+
+/// The FAST-9 corners of the ROI with their scores, before suppression: into
+/// `scratch.cands` (row-major, ROI coordinates) and `scratch.scores` (ROI row-major; zero
+/// elsewhere, reset with [`clear_scores`]). False when the ROI is too small or outside the
+/// image (no corners).
+#[inline(always)]
+fn scan(
+    img: &Plane,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+    threshold: i32,
+    scratch: &mut FastScratch,
+) -> bool {
+    scratch.cands.clear();
     let (rw, rh) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
     if rw < 7 || rh < 7 || x1 > img.w || y1 > img.h {
-        return;
+        return false;
     }
     let stride = img.w;
     let off = offsets(stride);
@@ -254,30 +297,149 @@ fn detect_roi_body(
             }
         }
     }
-    let sc = &scratch.scores;
-    for cand in &scratch.cands {
-        let (x, y, s) = (cand.x, cand.y, cand.score);
-        let mut keep = true;
-        'n: for ny in y - 1..=y + 1 {
-            for nx in x - 1..=x + 1 {
-                if (nx, ny) != (x, y) && sc[ny * rw + nx] >= s {
-                    keep = false;
-                    break 'n;
+    true
+}
+
+/// "Not a corner" in a [`ScoreMap`].
+const NO_CORNER: i32 = i32::MIN;
+
+/// The FAST-9 corners of a whole image at one threshold, before suppression: the score of
+/// every corner pixel, [`NO_CORNER`] elsewhere. A pixel's test reads only its 7×7
+/// neighbourhood, so a region of interest that contains that neighbourhood finds the same
+/// corner with the same score: [`ScoreMap::corners_in`] gives exactly [`detect_roi`]'s
+/// corners for any region, while the image is scanned once, in whole rows, instead of once
+/// per overlapping region.
+pub(crate) struct ScoreMap {
+    w: usize,
+    h: usize,
+    scores: Vec<i32>,
+}
+
+impl ScoreMap {
+    /// The corners of `img` at `threshold`.
+    pub(crate) fn new(img: &Plane, threshold: i32, scratch: &mut FastScratch) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, checked just above.
+            return unsafe { score_map_avx2(img, threshold, scratch) };
+        }
+        score_map_body(img, threshold, scratch)
+    }
+
+    /// [`detect_roi`] of the region `(x0, y0, x1, y1)` of the image at the map's threshold:
+    /// its corners with 3×3 non-maximum suppression inside the region (a neighbour outside
+    /// the region's detection span, or not a corner, counts as score 0), row-major,
+    /// coordinates relative to (x0, y0).
+    pub(crate) fn corners_in(
+        &self,
+        (x0, y0, x1, y1): (usize, usize, usize, usize),
+        out: &mut Vec<Corner>,
+    ) {
+        out.clear();
+        let (rw, rh) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
+        if rw < 7 || rh < 7 || x1 > self.w || y1 > self.h {
+            return;
+        }
+        let w = self.w;
+        // Score of a neighbour as the region's own detection sees it.
+        let seen = |rx: usize, ry: usize| -> i32 {
+            if (3..rw - 3).contains(&rx) && (3..rh - 3).contains(&ry) {
+                let s = self.scores[(y0 + ry) * w + x0 + rx];
+                if s == NO_CORNER { 0 } else { s }
+            } else {
+                0
+            }
+        };
+        for ry in 3..rh - 3 {
+            let row = &self.scores[(y0 + ry) * w + x0 + 3..(y0 + ry) * w + x1 - 3];
+            for (i, &s) in row.iter().enumerate() {
+                if s == NO_CORNER {
+                    continue;
+                }
+                let rx = i + 3;
+                let mut keep = true;
+                'n: for ny in ry - 1..=ry + 1 {
+                    for nx in rx - 1..=rx + 1 {
+                        if (nx, ny) != (rx, ry) && seen(nx, ny) >= s {
+                            keep = false;
+                            break 'n;
+                        }
+                    }
+                }
+                if keep {
+                    out.push(Corner {
+                        x: rx,
+                        y: ry,
+                        score: s,
+                    });
                 }
             }
         }
-        if keep {
-            out.push(*cand);
+    }
+}
+
+/// [`score_map_body`] compiled for AVX2 (the pre-test of [`scan`] on whole rows).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn score_map_avx2(img: &Plane, threshold: i32, scratch: &mut FastScratch) -> ScoreMap {
+    score_map_body(img, threshold, scratch)
+}
+
+#[inline(always)]
+fn score_map_body(img: &Plane, threshold: i32, scratch: &mut FastScratch) -> ScoreMap {
+    let (w, h) = (img.w, img.h);
+    let mut scores = vec![NO_CORNER; w * h];
+    if scan(img, (0, 0, w, h), threshold, scratch) {
+        for c in &scratch.cands {
+            scores[c.y * w + c.x] = c.score;
         }
+        clear_scores(scratch, w);
     }
-    for cand in &scratch.cands {
-        scratch.scores[cand.y * rw + cand.x] = 0;
-    }
+    ScoreMap { w, h, scores }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_whole_image_map_gives_every_region_its_own_corners() {
+        let mut st = 7u64;
+        let mut rnd = move || {
+            st = st
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (st >> 33) as u32
+        };
+        let (w, h) = (97, 71);
+        // Textured, flat with a few blobs, and noisy images.
+        let noise: Vec<u8> = (0..w * h).map(|_| (rnd() % 256) as u8).collect();
+        let images = [
+            plane(w, h, |x, y| ((x * 37 + y * 11 + (x * y) % 13) % 256) as u8),
+            plane(w, h, |x, y| if (x / 9 + y / 7) % 5 == 0 { 200 } else { 40 }),
+            plane(w, h, |x, y| noise[y * w + x]),
+        ];
+        let mut scratch = FastScratch::default();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let mut corners = 0;
+        for img in &images {
+            for th in [0, 1, 7, 20, 60] {
+                let map = ScoreMap::new(img, th, &mut scratch);
+                for _ in 0..300 {
+                    let x0 = (rnd() as usize) % w;
+                    let y0 = (rnd() as usize) % h;
+                    let x1 = (x0 + (rnd() as usize) % 45).min(w + 2);
+                    let y1 = (y0 + (rnd() as usize) % 45).min(h + 2);
+                    let roi = (x0, y0, x1, y1);
+                    detect_roi(img, roi, th, &mut scratch, &mut a);
+                    map.corners_in(roi, &mut b);
+                    assert_eq!(a, b, "roi {roi:?}, threshold {th}");
+                    corners += a.len();
+                }
+            }
+        }
+        assert!(corners > 1000, "{corners}");
+    }
 
     fn plane(w: usize, h: usize, f: impl Fn(usize, usize) -> u8) -> Plane {
         let mut data = vec![0; w * h];
