@@ -337,9 +337,6 @@ impl OrbExtractor {
         let mut cands: Vec<octree::Cand> = Vec::new();
         let mut scratch = fast::FastScratch::default();
         let mut cell = Vec::new();
-        // The first threshold's corners of the whole level, scanned once: each cell then
-        // takes exactly the corners its own detection would find (`ScoreMap::corners_in`).
-        let map = fast::ScoreMap::new(img, self.params.ini_th_fast as i32, &mut scratch);
         for i in 0..n_rows {
             let ini_y = min_b + i * h_cell;
             if ini_y >= max_by - 3 {
@@ -358,10 +355,11 @@ impl OrbExtractor {
                     max_x as usize,
                     max_y as usize,
                 );
-                map.corners_in(roi, &mut cell);
-                if cell.is_empty() {
-                    let th = self.params.min_th_fast as i32;
-                    fast::detect_roi(img, roi, th, &mut scratch, &mut cell);
+                for th in [self.params.ini_th_fast, self.params.min_th_fast] {
+                    fast::detect_roi(img, roi, th as i32, &mut scratch, &mut cell);
+                    if !cell.is_empty() {
+                        break;
+                    }
                 }
                 for c in &cell {
                     let x = c.x as i32 + j * w_cell;
