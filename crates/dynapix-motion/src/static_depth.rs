@@ -460,11 +460,8 @@ pub fn static_depth(
                 }
             }
             sort_lanes(&mut cols, &network);
-            for (l, out) in row[i0..i0 + m].iter_mut().enumerate() {
-                // Ascending, the views without a surface (infinite) last.
-                let n_fin = cols.partition_point(|c| c[l].is_finite());
-                *out = farthest_supported_ascending(|k| cols[k][l], n_fin, params);
-            }
+            let lanes = farthest_supported_lanes(&cols, params);
+            row[i0..i0 + m].copy_from_slice(&lanes[..m]);
         }
     });
     return_buffers(splats);
@@ -615,6 +612,97 @@ fn farthest_supported_ascending(
         }
     }
     f32::NAN
+}
+
+/// [`farthest_supported_ascending`] of every lane of `cols`, sorted ascending per lane with
+/// the views without a surface (+∞) last. Most pixels are decided at their farthest value:
+/// the run of values within `tol` below it is counted for all lanes at once (the test
+/// `v − a(j) < tol` holds on a contiguous run below the top because rounded subtraction is
+/// monotone, so the count is the run's length, as the step-by-step scan finds it) and the
+/// median taken from it; only lanes whose farthest value lacks support scan further, one at
+/// a time. The same values bit for bit (test `lane_scan_equals_the_scan_of_each_lane`).
+fn farthest_supported_lanes(cols: &[[f32; LANES]], params: &StaticDepthParams) -> [f32; LANES] {
+    // Finite values per lane (they come first).
+    let mut n_fin = [0u32; LANES];
+    for c in cols {
+        for l in 0..LANES {
+            n_fin[l] += u32::from(c[l].is_finite());
+        }
+    }
+    let mut top = [0f32; LANES];
+    let mut tol = [0f32; LANES];
+    for l in 0..LANES {
+        if let Some(k) = (n_fin[l] as usize).checked_sub(1) {
+            top[l] = cols[k][l];
+            tol[l] = params.tol(top[l]);
+        }
+    }
+    let below = run_below_top(cols, &n_fin, &top, &tol);
+    let mut out = [f32::NAN; LANES];
+    for l in 0..LANES {
+        let n = n_fin[l] as usize;
+        if n < params.min_support {
+            continue;
+        }
+        let (hi, m) = (n - 1, below[l] as usize + 1);
+        out[l] = if m >= params.min_support {
+            // The median of the run, as `farthest_supported_ascending`.
+            if m % 2 == 1 {
+                cols[hi - m / 2][l]
+            } else {
+                0.5 * (cols[hi - m / 2 + 1][l] + cols[hi - m / 2][l])
+            }
+        } else {
+            farthest_supported_ascending(|k| cols[k][l], n, params)
+        };
+    }
+    out
+}
+
+/// Per lane, the number of values at rows `j < n_fin − 1` with `top − a(j) < tol`,
+/// compiled for AVX2 when the CPU has it (a count: the same in every build).
+fn run_below_top(
+    cols: &[[f32; LANES]],
+    n_fin: &[u32; LANES],
+    top: &[f32; LANES],
+    tol: &[f32; LANES],
+) -> [u32; LANES] {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { run_below_top_avx2(cols, n_fin, top, tol) };
+    }
+    run_below_top_body(cols, n_fin, top, tol)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn run_below_top_avx2(
+    cols: &[[f32; LANES]],
+    n_fin: &[u32; LANES],
+    top: &[f32; LANES],
+    tol: &[f32; LANES],
+) -> [u32; LANES] {
+    run_below_top_body(cols, n_fin, top, tol)
+}
+
+#[inline(always)]
+fn run_below_top_body(
+    cols: &[[f32; LANES]],
+    n_fin: &[u32; LANES],
+    top: &[f32; LANES],
+    tol: &[f32; LANES],
+) -> [u32; LANES] {
+    let mut count = [0u32; LANES];
+    for (j, c) in cols.iter().enumerate() {
+        let j = j as u32;
+        for l in 0..LANES {
+            let inside = j + 1 < n_fin[l];
+            let near = top[l] - c[l] < tol[l];
+            count[l] += u32::from(inside & near);
+        }
+    }
+    count
 }
 
 /// [`farthest_supported`] of values already sorted descending.
@@ -1109,6 +1197,61 @@ mod tests {
             }
         }
         assert!(supported > 1000, "{supported}");
+    }
+
+    #[test]
+    #[allow(clippy::needless_range_loop)] // lane l of every row is written
+    fn lane_scan_equals_the_scan_of_each_lane() {
+        let mut st = 5u64;
+        let mut decided_at_top = 0;
+        let mut scanned = 0;
+        for rows in [1, 3, 8, 17, 24] {
+            for min_support in [1, 3, 6] {
+                let p = StaticDepthParams {
+                    min_support,
+                    ..StaticDepthParams::default()
+                };
+                for _ in 0..300 {
+                    let mut cols = vec![[f32::INFINITY; LANES]; rows];
+                    for l in 0..LANES {
+                        let n = (lcg(&mut st) as usize) % (rows + 1);
+                        let mut v: Vec<f32> = (0..n)
+                            .map(|_| {
+                                let c = (lcg(&mut st) % 4) as f32;
+                                match lcg(&mut st) % 8 {
+                                    0 => 0.3 + (lcg(&mut st) % 8000) as f32 * 0.001,
+                                    1 => 1.0 + c,
+                                    _ => 1.0 + c + (lcg(&mut st) % 100) as f32 * 0.0007,
+                                }
+                            })
+                            .collect();
+                        v.sort_unstable_by(f32::total_cmp);
+                        for (k, x) in v.iter().enumerate() {
+                            cols[k][l] = *x;
+                        }
+                    }
+                    let got = farthest_supported_lanes(&cols, &p);
+                    for l in 0..LANES {
+                        let n = cols.partition_point(|c| c[l].is_finite());
+                        let want = farthest_supported_ascending(|k| cols[k][l], n, &p);
+                        assert_eq!(got[l].to_bits(), want.to_bits(), "lane {l} of {cols:?}");
+                        if n >= min_support && want.is_finite() {
+                            let top = cols[n - 1][l];
+                            let support = (0..n).filter(|&k| top - cols[k][l] < p.tol(top)).count();
+                            if support >= min_support {
+                                decided_at_top += 1;
+                            } else {
+                                scanned += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            decided_at_top > 1000 && scanned > 100,
+            "{decided_at_top} {scanned}"
+        );
     }
 
     #[test]
