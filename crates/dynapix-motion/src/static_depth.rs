@@ -738,6 +738,7 @@ fn median_sorted_desc(run: &[f32]) -> f32 {
 /// left out), separably, as shifted copies of whole rows and then whole columns, which the
 /// compiler vectorises. `op` must be commutative and associative on the values given, so
 /// that the visiting order does not matter.
+#[inline(always)]
 fn window_fold<T: Copy>(v: &[T], w: usize, h: usize, r: usize, op: impl Fn(T, T) -> T) -> Vec<T> {
     if r == 0 || w == 0 || h == 0 {
         return v.to_vec();
@@ -769,16 +770,19 @@ fn window_fold<T: Copy>(v: &[T], w: usize, h: usize, r: usize, op: impl Fn(T, T)
 /// Minimum over a square window of radius `r`, ignoring `NaN` (NaN where all are NaN).
 /// Pixels outside the image are ignored. The values are positive or `NaN`, so the minimum
 /// does not depend on the order in which the window is visited.
+#[inline(always)]
 fn min_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
     window_fold(v, w, h, r, |a, b| if b < a || a.is_nan() { b } else { a })
 }
 
 /// Binary dilation by a `(2r+1)²` square on a working-resolution mask (pixels outside the
 /// image are ignored).
+#[inline(always)]
 fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     window_fold(mask, w, h, r, |a, b| a | b)
 }
 
+#[inline(always)]
 fn erode(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     let inv: Vec<bool> = mask.iter().map(|&m| !m).collect();
     dilate(&inv, w, h, r).into_iter().map(|m| !m).collect()
@@ -799,11 +803,38 @@ pub fn geometric_term(
         current.depth.dimensions(),
         sd.depth.dimensions(),
     )?;
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return Ok(unsafe { geometric_term_avx2(current, sd, params) });
+    }
+    Ok(geometric_term_body(current, sd, params))
+}
+
+/// [`geometric_term_body`] compiled for AVX2 (the morphology on whole rows; comparisons,
+/// minima and booleans only, so the same mask in every build).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn geometric_term_avx2(
+    current: &WorkingDepth,
+    sd: &StaticDepth,
+    params: &StaticDepthParams,
+) -> FloatImage {
+    geometric_term_body(current, sd, params)
+}
+
+/// [`geometric_term`] after its checks.
+#[inline(always)]
+fn geometric_term_body(
+    current: &WorkingDepth,
+    sd: &StaticDepth,
+    params: &StaticDepthParams,
+) -> FloatImage {
     let (w, h) = current.depth.dimensions();
     let (wu, hu) = (w as usize, h as usize);
     if wu == 0 || hu == 0 {
         let (fw, fh) = current.full_size;
-        return Ok(FloatImage::new(fw, fh));
+        return FloatImage::new(fw, fh);
     }
     let z = current.depth.as_raw();
     let s = min_filter(sd.depth.as_raw(), wu, hu, params.align_radius as usize);
@@ -836,7 +867,7 @@ pub fn geometric_term(
         let row = &mask[(y / f).min(hu - 1) * wu..][..wu];
         out.extend(cols.iter().map(|&i| if row[i] { 1.0f32 } else { 0.0 }));
     }
-    Ok(FloatImage::from_raw(fw, fh, out).unwrap_or_else(|| FloatImage::new(fw, fh)))
+    FloatImage::from_raw(fw, fh, out).unwrap_or_else(|| FloatImage::new(fw, fh))
 }
 
 /// Indices of the neighbour views of frame `t` among frames with timestamps `stamps`: frames
@@ -1252,6 +1283,52 @@ mod tests {
             decided_at_top > 1000 && scanned > 100,
             "{decided_at_top} {scanned}"
         );
+    }
+
+    #[test]
+    fn the_geometric_term_is_the_same_in_every_build() {
+        let (w, h) = (97, 61);
+        let c = cam(w, h);
+        let p = params();
+        let mut st = 9u64;
+        for _ in 0..4 {
+            // Two boxes in front of a wall at 3 m, and holes without depth.
+            let boxes: Vec<(u32, u32, u32)> = (0..2)
+                .map(|_| {
+                    (
+                        lcg(&mut st) % (w - 16),
+                        lcg(&mut st) % (h - 16),
+                        6 + lcg(&mut st) % 10,
+                    )
+                })
+                .collect();
+            let z = FloatImage::from_fn(w, h, |x, y| {
+                let hole = lcg(&mut st).is_multiple_of(20);
+                let in_box = boxes
+                    .iter()
+                    .any(|&(bx, by, s)| (bx..bx + s).contains(&x) && (by..by + s).contains(&y));
+                Luma([if hole {
+                    0.0
+                } else if in_box {
+                    1.0
+                } else {
+                    3.0
+                }])
+            });
+            let cur = WorkingDepth::new(&z, &p);
+            let walls = [
+                wall(w, h, 3.0, None),
+                wall(w, h, 3.0, None),
+                wall(w, h, 3.0, None),
+            ];
+            let working: Vec<WorkingDepth> =
+                walls.iter().map(|d| WorkingDepth::new(d, &p)).collect();
+            let sd = static_depth(&c, &same_pose_views(&working), &p).unwrap();
+            let fast = geometric_term(&cur, &sd, &p).unwrap();
+            let base = geometric_term_body(&cur, &sd, &p);
+            assert_eq!(fast.as_raw(), base.as_raw());
+            assert!(fast.iter().any(|&v| v > 0.0) && fast.contains(&0.0));
+        }
     }
 
     #[test]
