@@ -457,7 +457,7 @@ impl<'a> Pair<'a> {
 
     /// The pixel `(x, y)` of frame i lifted, if it has depth, a ray, a flow target inside the
     /// image (within the span of pixel centres) and depth at the rounded target pixel.
-    #[inline]
+    #[inline(always)]
     fn lift(&self, x: u32, y: u32) -> Option<Lifted> {
         let cam = self.rays.camera();
         let z = self.depth_i.get_pixel(x, y)[0] as f64;
@@ -502,9 +502,29 @@ pub fn correspondences(
 ) -> Result<Correspondences, MotionError> {
     params.validate()?;
     let pair = Pair::new(depth_i, depth_j, flow, rays, params)?;
-    let cam = rays.camera();
+    let stride = params.stride_for(rays.camera());
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return Ok(unsafe { correspondences_avx2(&pair, stride) });
+    }
+    Ok(correspondences_body(&pair, stride))
+}
+
+/// [`correspondences_body`] compiled for AVX2, where `f64::round` is an instruction instead
+/// of a library call; the same arithmetic, so the same correspondences (test
+/// `correspondences_are_the_same_in_every_build`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn correspondences_avx2(pair: &Pair<'_>, stride: usize) -> Correspondences {
+    correspondences_body(pair, stride)
+}
+
+/// The correspondences of `pair` on the grid of step `stride`.
+#[inline(always)]
+fn correspondences_body(pair: &Pair<'_>, stride: usize) -> Correspondences {
+    let cam = pair.rays.camera();
     let mut out = Correspondences::default();
-    let stride = params.stride_for(cam);
     for y in (0..cam.height).step_by(stride) {
         for x in (0..cam.width).step_by(stride) {
             if let Some(l) = pair.lift(x, y) {
@@ -515,7 +535,7 @@ pub fn correspondences(
             }
         }
     }
-    Ok(out)
+    out
 }
 
 /// Kabsch/Horn: the rigid motion minimising `Σ‖R·aₖ + t − bₖ‖²` (SVD with the reflection
@@ -1092,6 +1112,54 @@ mod tests {
             d.rotation.angle(),
             (a.translation.vector - b.translation.vector).norm(),
         )
+    }
+
+    #[test]
+    fn correspondences_are_the_same_in_every_build() {
+        for cam in [small_camera(), small_distorted_camera()] {
+            let (w, h) = (cam.width, cam.height);
+            let params = RigidityParams::default();
+            let mut rng = ChaCha8Rng::seed_from_u64(8);
+            let mut depth = || {
+                FloatImage::from_fn(w, h, |_, _| {
+                    image::Luma([match rng.random_range(0..10) {
+                        0 => 0.0,
+                        1 => f32::NAN,
+                        _ => rng.random_range(0.05f32..4.0),
+                    }])
+                })
+            };
+            let (di, dj) = (depth(), depth());
+            let flow = FlowField {
+                width: w,
+                height: h,
+                // Half-pixel flows too, where rounding matters.
+                data: (0..w * h)
+                    .map(|i| {
+                        let f = rng.random_range(-6.0f32..6.0);
+                        if i % 3 == 0 {
+                            [f.round() + 0.5, -1.5]
+                        } else {
+                            [f, f * 0.5]
+                        }
+                    })
+                    .collect(),
+            };
+            let rays = camera_rays(&cam);
+            let got = correspondences(&di, &dj, &flow, &rays, &params).unwrap();
+            let pair = Pair::new(&di, &dj, &flow, &rays, &params).unwrap();
+            let want = correspondences_body(&pair, params.stride_for(&cam));
+            assert!(got.len() > 10, "{}", got.len());
+            assert_eq!(got.pixels, want.pixels);
+            for (a, b) in [(&got.source, &want.source), (&got.target, &want.target)] {
+                let bits = |p: &[Point3<f64>]| {
+                    p.iter()
+                        .flat_map(|q| q.coords.iter().map(|c| c.to_bits()).collect::<Vec<_>>())
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(bits(a), bits(b));
+            }
+        }
     }
 
     #[test]
