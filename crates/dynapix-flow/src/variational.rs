@@ -607,53 +607,21 @@ impl BuildEnv<'_> {
         pick(s.inv22, inv22);
     }
 
-    /// The system row as it was filled a pixel at a time with branches: the test reference
-    /// of [`BuildEnv::system_row`] and [`BuildEnv::split_row`].
+    /// One colour's row of the system a pixel at a time ([`BuildEnv::system_px`]): the test
+    /// reference of [`BuildEnv::system_row`] and [`BuildEnv::split_row`].
     #[cfg(test)]
     fn fill_row_reference(&self, colour: usize, y: usize, s: &mut RowMut<'_>, data: &[f32]) {
-        let (w, h) = (self.lay.w, self.lay.h);
-        let o = y * w;
-        let (u, v, ws) = (
-            &self.u.data[o..o + w],
-            &self.v.data[o..o + w],
-            &self.ws.data[o..o + w],
-        );
-        let (a11, a12, a22) = (&data[..w], &data[w..2 * w], &data[2 * w..3 * w]);
-        let (b1, b2) = (&data[3 * w..4 * w], &data[4 * w..5 * w]);
-        // Neighbour rows (the row itself at the border, where the weight is zero anyway).
-        let up = if y > 0 { o - w } else { o };
-        let dn = if y + 1 < h { o + w } else { o };
-        let (u_up, v_up) = (&self.u.data[up..up + w], &self.v.data[up..up + w]);
-        let (u_dn, v_dn) = (&self.u.data[dn..dn + w], &self.v.data[dn..dn + w]);
-        let ws_up = &self.ws.data[up..up + w];
+        let w = self.lay.w;
         let (x0, len) = self.lay.row(colour, y);
         for k in 0..len {
-            let x = x0 + 2 * k;
-            let j = k + 1;
-            // Smoothness: edge weights (zero across the image border) and the base flow's
-            // differences to the neighbours on the right-hand side.
-            let xl = x.saturating_sub(1);
-            let xr = if x + 1 < w { x + 1 } else { x };
-            let wl = if x > 0 { ws[xl] } else { 0.0 };
-            let wr = if x + 1 < w { ws[x] } else { 0.0 };
-            let wu = if y > 0 { ws_up[x] } else { 0.0 };
-            let wd = if y + 1 < h { ws[x] } else { 0.0 };
-            let su = wl * (u[xl] - u[x])
-                + wr * (u[xr] - u[x])
-                + wu * (u_up[x] - u[x])
-                + wd * (u_dn[x] - u[x]);
-            let sv = wl * (v[xl] - v[x])
-                + wr * (v[xr] - v[x])
-                + wu * (v_up[x] - v[x])
-                + wd * (v_dn[x] - v[x]);
-            let sum = wl + wr + wu + wd;
-            // Raw weight even at the border: the sweeps multiply it by the zero padding.
-            s.ws[j] = ws[x];
-            s.ru[j] = b1[x] + su;
-            s.rv[j] = b2[x] + sv;
-            s.a12[j] = a12[x];
-            s.inv11[j] = 1.0 / (a11[x] + sum);
-            s.inv22[j] = 1.0 / (a22[x] + sum);
+            let (x, j) = (x0 + 2 * k, k + 1);
+            let (ru, rv, inv11, inv22) = self.system_px(y, x, data);
+            s.ws[j] = self.ws.data[y * w + x];
+            s.ru[j] = ru;
+            s.rv[j] = rv;
+            s.a12[j] = data[w + x];
+            s.inv11[j] = inv11;
+            s.inv22[j] = inv22;
         }
     }
 }

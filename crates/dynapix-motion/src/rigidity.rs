@@ -1114,22 +1114,24 @@ mod tests {
         )
     }
 
+    /// A depth map with holes (0 and NaN) among depths of 0.05–4 m.
+    fn random_depth(rng: &mut ChaCha8Rng, w: u32, h: u32) -> FloatImage {
+        FloatImage::from_fn(w, h, |_, _| {
+            image::Luma([match rng.random_range(0..10) {
+                0 => 0.0,
+                1 => f32::NAN,
+                _ => rng.random_range(0.05f32..4.0),
+            }])
+        })
+    }
+
     #[test]
     fn correspondences_are_the_same_in_every_build() {
         for cam in [small_camera(), small_distorted_camera()] {
             let (w, h) = (cam.width, cam.height);
             let params = RigidityParams::default();
             let mut rng = ChaCha8Rng::seed_from_u64(8);
-            let mut depth = || {
-                FloatImage::from_fn(w, h, |_, _| {
-                    image::Luma([match rng.random_range(0..10) {
-                        0 => 0.0,
-                        1 => f32::NAN,
-                        _ => rng.random_range(0.05f32..4.0),
-                    }])
-                })
-            };
-            let (di, dj) = (depth(), depth());
+            let (di, dj) = (random_depth(&mut rng, w, h), random_depth(&mut rng, w, h));
             let flow = FlowField {
                 width: w,
                 height: h,
@@ -1168,16 +1170,7 @@ mod tests {
             let (w, h) = (cam.width, cam.height);
             let params = RigidityParams::default();
             let mut rng = ChaCha8Rng::seed_from_u64(4);
-            let mut depth = || {
-                FloatImage::from_fn(w, h, |_, _| {
-                    image::Luma([match rng.random_range(0..10) {
-                        0 => 0.0,
-                        1 => f32::NAN,
-                        _ => rng.random_range(0.05f32..4.0),
-                    }])
-                })
-            };
-            let (di, dj) = (depth(), depth());
+            let (di, dj) = (random_depth(&mut rng, w, h), random_depth(&mut rng, w, h));
             let flow = FlowField {
                 width: w,
                 height: h,

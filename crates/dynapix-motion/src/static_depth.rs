@@ -1202,6 +1202,16 @@ mod tests {
         assert!(farthest_supported(&mut v, &p).is_nan());
     }
 
+    /// A depth from one of four clusters (with close values and exact ties) or an outlier.
+    fn cluster_depth(st: &mut u64) -> f32 {
+        let c = (lcg(st) % 4) as f32;
+        match lcg(st) % 8 {
+            0 => 0.3 + (lcg(st) % 8000) as f32 * 0.001,
+            1 => 1.0 + c,
+            _ => 1.0 + c + (lcg(st) % 100) as f32 * 0.0007,
+        }
+    }
+
     #[test]
     fn ascending_scan_equals_the_descending_scan() {
         let p = StaticDepthParams::default();
@@ -1210,16 +1220,7 @@ mod tests {
         for n in 0..40 {
             for _ in 0..200 {
                 // Clusters of nearby depths with outliers and exact ties.
-                let mut v: Vec<f32> = (0..n)
-                    .map(|_| {
-                        let c = (lcg(&mut st) % 4) as f32;
-                        match lcg(&mut st) % 8 {
-                            0 => 0.3 + (lcg(&mut st) % 8000) as f32 * 0.001,
-                            1 => 1.0 + c,
-                            _ => 1.0 + c + (lcg(&mut st) % 100) as f32 * 0.0007,
-                        }
-                    })
-                    .collect();
+                let mut v: Vec<f32> = (0..n).map(|_| cluster_depth(&mut st)).collect();
                 v.sort_unstable_by(f32::total_cmp);
                 let want = farthest_supported(&mut v.clone(), &p);
                 let got = farthest_supported_ascending(|k| v[k], v.len(), &p);
@@ -1246,16 +1247,7 @@ mod tests {
                     let mut cols = vec![[f32::INFINITY; LANES]; rows];
                     for l in 0..LANES {
                         let n = (lcg(&mut st) as usize) % (rows + 1);
-                        let mut v: Vec<f32> = (0..n)
-                            .map(|_| {
-                                let c = (lcg(&mut st) % 4) as f32;
-                                match lcg(&mut st) % 8 {
-                                    0 => 0.3 + (lcg(&mut st) % 8000) as f32 * 0.001,
-                                    1 => 1.0 + c,
-                                    _ => 1.0 + c + (lcg(&mut st) % 100) as f32 * 0.0007,
-                                }
-                            })
-                            .collect();
+                        let mut v: Vec<f32> = (0..n).map(|_| cluster_depth(&mut st)).collect();
                         v.sort_unstable_by(f32::total_cmp);
                         for (k, x) in v.iter().enumerate() {
                             cols[k][l] = *x;
