@@ -352,6 +352,20 @@ struct BuildEnv<'a> {
     p: &'a VariationalParams,
 }
 
+/// The system of one pixel from its smoothness edge weights `w` (left, right, up, down),
+/// the base flow `u` and `v` (left, centre, right, up, down) and its data blocks `d`
+/// (`a11`, `a22`, `b1`, `b2`): (`ru`, `rv`, `inv11`, `inv22`), the right-hand sides with the
+/// base flow's differences to the neighbours and the reciprocal diagonals.
+#[inline(always)]
+fn pixel_system(w: [f32; 4], u: [f32; 5], v: [f32; 5], d: [f32; 4]) -> (f32, f32, f32, f32) {
+    let [wl, wr, wu, wd] = w;
+    let su = wl * (u[0] - u[1]) + wr * (u[2] - u[1]) + wu * (u[3] - u[1]) + wd * (u[4] - u[1]);
+    let sv = wl * (v[0] - v[1]) + wr * (v[2] - v[1]) + wu * (v[3] - v[1]) + wd * (v[4] - v[1]);
+    let sum = wl + wr + wu + wd;
+    let [a11, a22, b1, b2] = d;
+    (b1 + su, b2 + sv, 1.0 / (a11 + sum), 1.0 / (a22 + sum))
+}
+
 /// Mutable views of one padded row of every coefficient array of an [`RbSystem`].
 struct RowMut<'a> {
     ws: &'a mut [f32],
@@ -523,20 +537,12 @@ impl BuildEnv<'_> {
         let inv11 = &mut inv11[1..n + 1];
         let inv22 = &mut inv22[1..n + 1];
         for i in 0..n {
-            let (wl, wr, wu, wd) = (wl[i], wr[i], wu[i], wd[i]);
-            let su = wl * (ul[i] - uc[i])
-                + wr * (ur[i] - uc[i])
-                + wu * (uu[i] - uc[i])
-                + wd * (ud[i] - uc[i]);
-            let sv = wl * (vl[i] - vc[i])
-                + wr * (vr[i] - vc[i])
-                + wu * (vu[i] - vc[i])
-                + wd * (vd[i] - vc[i]);
-            let sum = wl + wr + wu + wd;
-            ru[i] = b1[i] + su;
-            rv[i] = b2[i] + sv;
-            inv11[i] = 1.0 / (a11[i] + sum);
-            inv22[i] = 1.0 / (a22[i] + sum);
+            (ru[i], rv[i], inv11[i], inv22[i]) = pixel_system(
+                [wl[i], wr[i], wu[i], wd[i]],
+                [ul[i], uc[i], ur[i], uu[i], ud[i]],
+                [vl[i], vc[i], vr[i], vu[i], vd[i]],
+                [a11[i], a22[i], b1[i], b2[i]],
+            );
         }
     }
 
@@ -566,20 +572,11 @@ impl BuildEnv<'_> {
         let wr = if x + 1 < w { ws[x] } else { 0.0 };
         let wu = if y > 0 { ws_up[x] } else { 0.0 };
         let wd = if y + 1 < h { ws[x] } else { 0.0 };
-        let su = wl * (u[xl] - u[x])
-            + wr * (u[xr] - u[x])
-            + wu * (u_up[x] - u[x])
-            + wd * (u_dn[x] - u[x]);
-        let sv = wl * (v[xl] - v[x])
-            + wr * (v[xr] - v[x])
-            + wu * (v_up[x] - v[x])
-            + wd * (v_dn[x] - v[x]);
-        let sum = wl + wr + wu + wd;
-        (
-            b1[x] + su,
-            b2[x] + sv,
-            1.0 / (a11[x] + sum),
-            1.0 / (a22[x] + sum),
+        pixel_system(
+            [wl, wr, wu, wd],
+            [u[xl], u[x], u[xr], u_up[x], u_dn[x]],
+            [v[xl], v[x], v[xr], v_up[x], v_dn[x]],
+            [a11[x], a22[x], b1[x], b2[x]],
         )
     }
 
