@@ -633,11 +633,29 @@ pub fn rgb_to_gray(img: &RgbImage, mode: GrayConversion) -> GrayImage {
         GrayConversion::Bt601 => (CR, CB),
         GrayConversion::OrbSlam2Swapped => (CB, CR),
     };
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { rgb_to_gray_avx2(img, [wr, CG, wb]) };
+    }
+    rgb_to_gray_body(img, [wr, CG, wb])
+}
+
+/// [`rgb_to_gray_body`] compiled for AVX2 (eight 32-bit products per instruction; integer
+/// arithmetic, so the same grey levels, test `grey_is_the_same_in_every_build`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn rgb_to_gray_avx2(img: &RgbImage, weights: [u32; 3]) -> GrayImage {
+    rgb_to_gray_body(img, weights)
+}
+
+/// Grey level `(r·w0 + g·w1 + b·w2 + 2^13) >> 14` of every pixel (weights in 2^-14 units).
+#[inline(always)]
+fn rgb_to_gray_body(img: &RgbImage, [wr, wg, wb]: [u32; 3]) -> GrayImage {
     let mut out = GrayImage::new(img.width(), img.height());
-    for (o, p) in out.pixels_mut().zip(img.pixels()) {
-        let [r, g, b] = p.0;
-        let v = (r as u32 * wr + g as u32 * CG + b as u32 * wb + (1 << 13)) >> 14;
-        o.0[0] = v.min(255) as u8;
+    for (o, p) in out.iter_mut().zip(img.as_raw().chunks_exact(3)) {
+        let v = (p[0] as u32 * wr + p[1] as u32 * wg + p[2] as u32 * wb + (1 << 13)) >> 14;
+        *o = v.min(255) as u8;
     }
     out
 }
@@ -681,6 +699,28 @@ pub(crate) mod tests;
 
 #[cfg(test)]
 mod round_tests {
+    #[test]
+    fn grey_is_the_same_in_every_build() {
+        let img = image::RgbImage::from_fn(97, 31, |x, y| {
+            let k = (x * 31 + y * 17) as u64;
+            let b = |s: u32| ((k.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> s) & 0xFF) as u8;
+            image::Rgb([b(8), b(24), b(40)])
+        });
+        for (mode, w) in [
+            (super::GrayConversion::Bt601, [4899, 9617, 1868]),
+            (super::GrayConversion::OrbSlam2Swapped, [1868, 9617, 4899]),
+        ] {
+            let got = super::rgb_to_gray(&img, mode);
+            assert_eq!(got.as_raw(), super::rgb_to_gray_body(&img, w).as_raw());
+            // And the definition, pixel by pixel.
+            for (o, p) in got.pixels().zip(img.pixels()) {
+                let [r, g, b] = p.0.map(u32::from);
+                let v = (r * w[0] + g * w[1] + b * w[2] + (1 << 13)) >> 14;
+                assert_eq!(u32::from(o.0[0]), v.min(255));
+            }
+        }
+    }
+
     #[test]
     fn round_even_matches_round_ties_even() {
         for i in -4000..4000 {
