@@ -366,6 +366,50 @@ fn pixel_system(w: [f32; 4], u: [f32; 5], v: [f32; 5], d: [f32; 4]) -> (f32, f32
     (b1 + su, b2 + sv, 1.0 / (a11 + sum), 1.0 / (a22 + sum))
 }
 
+/// Row y of the flow, the smoothness weights and the data blocks, with the rows above and
+/// below it (the row itself at the image border, where the weights are zero).
+struct RowView<'a> {
+    u: &'a [f32],
+    v: &'a [f32],
+    ws: &'a [f32],
+    u_up: &'a [f32],
+    v_up: &'a [f32],
+    ws_up: &'a [f32],
+    u_dn: &'a [f32],
+    v_dn: &'a [f32],
+    a11: &'a [f32],
+    a22: &'a [f32],
+    b1: &'a [f32],
+    b2: &'a [f32],
+    /// There is a row above (y > 0).
+    has_up: bool,
+    /// There is a row below (y + 1 < h).
+    has_down: bool,
+}
+
+impl RowView<'_> {
+    /// The system of pixel x ([`pixel_system`]): smoothness edge weights (zero across the
+    /// image border) and the base flow's differences to the neighbours added to the
+    /// right-hand sides. Returns (`ru`, `rv`, `inv11`, `inv22`).
+    #[inline(always)]
+    fn system_px(&self, x: usize) -> (f32, f32, f32, f32) {
+        let w = self.u.len();
+        let xl = x.saturating_sub(1);
+        let xr = if x + 1 < w { x + 1 } else { x };
+        let wl = if x > 0 { self.ws[xl] } else { 0.0 };
+        let wr = if x + 1 < w { self.ws[x] } else { 0.0 };
+        let wu = if self.has_up { self.ws_up[x] } else { 0.0 };
+        let wd = if self.has_down { self.ws[x] } else { 0.0 };
+        let (u, v) = (self.u, self.v);
+        pixel_system(
+            [wl, wr, wu, wd],
+            [u[xl], u[x], u[xr], self.u_up[x], self.u_dn[x]],
+            [v[xl], v[x], v[xr], self.v_up[x], self.v_dn[x]],
+            [self.a11[x], self.a22[x], self.b1[x], self.b2[x]],
+        )
+    }
+}
+
 /// Mutable views of one padded row of every coefficient array of an [`RbSystem`].
 struct RowMut<'a> {
     ws: &'a mut [f32],
@@ -487,42 +531,29 @@ impl BuildEnv<'_> {
     /// (`ru`, `rv`) and reciprocal diagonals (`inv11`, `inv22`) into `full` (4 × w), from the
     /// data blocks `data` of [`BuildEnv::data_row`] (`zeros`: w zeros). The interior pixels run without
     /// branches on contiguous slices (vectorised); the two border pixels take
-    /// [`BuildEnv::system_px`]. Both are the expressions of [`BuildEnv::system_px`] in the
+    /// [`RowView::system_px`]. Both are the expressions of [`pixel_system`] in the
     /// same order, so the same bits (test `rows_of_the_system_equal_the_pixel_by_pixel_system`).
     #[inline(always)]
     fn system_row(&self, y: usize, data: &[f32], zeros: &[f32], full: &mut [f32]) {
-        let (w, h) = (self.lay.w, self.lay.h);
-        let o = y * w;
-        let (u, v, ws) = (
-            &self.u.data[o..o + w],
-            &self.v.data[o..o + w],
-            &self.ws.data[o..o + w],
-        );
-        let (a11, a22) = (&data[..w], &data[2 * w..3 * w]);
-        let (b1, b2) = (&data[3 * w..4 * w], &data[4 * w..5 * w]);
+        let r = self.row_view(y, data);
+        let w = self.lay.w;
         let (ru, rest) = full.split_at_mut(w);
         let (rv, rest) = rest.split_at_mut(w);
         let (inv11, rest) = rest.split_at_mut(w);
         let inv22 = &mut rest[..w];
         for x in [0, w - 1] {
-            let (a, b, c, d) = self.system_px(y, x, data);
-            (ru[x], rv[x], inv11[x], inv22[x]) = (a, b, c, d);
+            (ru[x], rv[x], inv11[x], inv22[x]) = r.system_px(x);
         }
         if w < 3 {
             return;
         }
-        let up = if y > 0 { o - w } else { o };
-        let dn = if y + 1 < h { o + w } else { o };
-        let (u_up, v_up) = (&self.u.data[up..up + w], &self.v.data[up..up + w]);
-        let (u_dn, v_dn) = (&self.u.data[dn..dn + w], &self.v.data[dn..dn + w]);
+        let (u, v, ws) = (r.u, r.v, r.ws);
+        let (u_up, v_up, u_dn, v_dn) = (r.u_up, r.v_up, r.u_dn, r.v_dn);
+        let (a11, a22, b1, b2) = (r.a11, r.a22, r.b1, r.b2);
         // Vertical edge weights of the row: zero across the image border.
         let zeros = &zeros[..w];
-        let wu_row = if y > 0 {
-            &self.ws.data[up..up + w]
-        } else {
-            zeros
-        };
-        let wd_row = if y + 1 < h { ws } else { zeros };
+        let wu_row = if r.has_up { r.ws_up } else { zeros };
+        let wd_row = if r.has_down { ws } else { zeros };
         // Interior pixels 1..w-1: x - 1 at index i, x at i + 1, x + 1 at i + 2.
         let n = w - 2;
         let (ul, uc, ur) = (&u[..n], &u[1..n + 1], &u[2..n + 2]);
@@ -546,38 +577,32 @@ impl BuildEnv<'_> {
         }
     }
 
-    /// The system of pixel (x, y): smoothness edge weights (zero across the image border)
-    /// and the base flow's differences to the neighbours added to the right-hand sides.
-    /// Returns (`ru`, `rv`, `inv11`, `inv22`).
+    /// The slices of row y (and of the rows above and below it) that its system reads, with
+    /// the data blocks `data` of [`BuildEnv::data_row`].
     #[inline(always)]
-    fn system_px(&self, y: usize, x: usize, data: &[f32]) -> (f32, f32, f32, f32) {
+    fn row_view<'b>(&'b self, y: usize, data: &'b [f32]) -> RowView<'b> {
         let (w, h) = (self.lay.w, self.lay.h);
         let o = y * w;
-        let (u, v, ws) = (
-            &self.u.data[o..o + w],
-            &self.v.data[o..o + w],
-            &self.ws.data[o..o + w],
-        );
-        let (a11, a22) = (&data[..w], &data[2 * w..3 * w]);
-        let (b1, b2) = (&data[3 * w..4 * w], &data[4 * w..5 * w]);
         // Neighbour rows (the row itself at the border, where the weight is zero anyway).
         let up = if y > 0 { o - w } else { o };
         let dn = if y + 1 < h { o + w } else { o };
-        let (u_up, v_up) = (&self.u.data[up..up + w], &self.v.data[up..up + w]);
-        let (u_dn, v_dn) = (&self.u.data[dn..dn + w], &self.v.data[dn..dn + w]);
-        let ws_up = &self.ws.data[up..up + w];
-        let xl = x.saturating_sub(1);
-        let xr = if x + 1 < w { x + 1 } else { x };
-        let wl = if x > 0 { ws[xl] } else { 0.0 };
-        let wr = if x + 1 < w { ws[x] } else { 0.0 };
-        let wu = if y > 0 { ws_up[x] } else { 0.0 };
-        let wd = if y + 1 < h { ws[x] } else { 0.0 };
-        pixel_system(
-            [wl, wr, wu, wd],
-            [u[xl], u[x], u[xr], u_up[x], u_dn[x]],
-            [v[xl], v[x], v[xr], v_up[x], v_dn[x]],
-            [a11[x], a22[x], b1[x], b2[x]],
-        )
+        let row = |p: &'b Plane, o: usize| &p.data[o..o + w];
+        RowView {
+            u: row(self.u, o),
+            v: row(self.v, o),
+            ws: row(self.ws, o),
+            u_up: row(self.u, up),
+            v_up: row(self.v, up),
+            ws_up: row(self.ws, up),
+            u_dn: row(self.u, dn),
+            v_dn: row(self.v, dn),
+            a11: &data[..w],
+            a22: &data[2 * w..3 * w],
+            b1: &data[3 * w..4 * w],
+            b2: &data[4 * w..5 * w],
+            has_up: y > 0,
+            has_down: y + 1 < h,
+        }
     }
 
     /// Copies one colour's pixels of row y from the row-order system `full`
@@ -604,15 +629,16 @@ impl BuildEnv<'_> {
         pick(s.inv22, inv22);
     }
 
-    /// One colour's row of the system a pixel at a time ([`BuildEnv::system_px`]): the test
+    /// One colour's row of the system a pixel at a time ([`RowView::system_px`]): the test
     /// reference of [`BuildEnv::system_row`] and [`BuildEnv::split_row`].
     #[cfg(test)]
     fn fill_row_reference(&self, colour: usize, y: usize, s: &mut RowMut<'_>, data: &[f32]) {
         let w = self.lay.w;
         let (x0, len) = self.lay.row(colour, y);
+        let row = self.row_view(y, data);
         for k in 0..len {
             let (x, j) = (x0 + 2 * k, k + 1);
-            let (ru, rv, inv11, inv22) = self.system_px(y, x, data);
+            let (ru, rv, inv11, inv22) = row.system_px(x);
             s.ws[j] = self.ws.data[y * w + x];
             s.ru[j] = ru;
             s.rv[j] = rv;
