@@ -531,10 +531,209 @@ fn sorting_network_for(n: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
+/// Straight-line code for one fixed network: `$net`, its pairs as data (the test
+/// `fixed_network_is_batchers` checks them against [`sorting_network_for`]), and `$name`,
+/// which applies them with `ce` to `$n` rows held in local variables, so the rows live in
+/// registers instead of being loaded and stored by every compare-exchange of a loop over
+/// the pairs.
+macro_rules! fixed_network {
+    ($name:ident, $net:ident, $n:literal, [$(($i:literal, $j:literal)),* $(,)?]) => {
+        /// The pairs of the fixed network (see [`fixed_network`]), for the tests.
+        #[cfg(test)]
+        const $net: [(usize, usize); [$($i),*].len()] = [$(($i, $j)),*];
+
+        /// The fixed network applied to rows held by value: `ce(a, b)` returns the rows
+        /// `(lo, hi)` put in order lane by lane.
+        #[inline(always)]
+        fn $name<T: Copy>(v: &mut [T; $n], ce: impl Fn(T, T) -> (T, T)) {
+            $(
+                let (lo, hi) = ce(v[$i], v[$j]);
+                v[$i] = lo;
+                v[$j] = hi;
+            )*
+        }
+    };
+}
+
+/// Rows `a` and `b` in order lane by lane, by the same selection as [`sort_lanes_body`].
+#[inline(always)]
+fn compare_exchange(a: [f32; LANES], b: [f32; LANES]) -> ([f32; LANES], [f32; LANES]) {
+    let mut lo = a;
+    let mut hi = b;
+    for l in 0..LANES {
+        let swap = b[l] < a[l];
+        lo[l] = if swap { b[l] } else { a[l] };
+        hi[l] = if swap { a[l] } else { b[l] };
+    }
+    (lo, hi)
+}
+
+// Batcher's network for 24 rows, the default number of static-depth views.
+fixed_network!(
+    apply_network_24,
+    NETWORK_24,
+    24,
+    [
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (6, 7),
+        (8, 9),
+        (10, 11),
+        (12, 13),
+        (14, 15),
+        (16, 17),
+        (18, 19),
+        (20, 21),
+        (22, 23),
+        (0, 2),
+        (1, 3),
+        (4, 6),
+        (5, 7),
+        (8, 10),
+        (9, 11),
+        (12, 14),
+        (13, 15),
+        (16, 18),
+        (17, 19),
+        (20, 22),
+        (21, 23),
+        (1, 2),
+        (5, 6),
+        (9, 10),
+        (13, 14),
+        (17, 18),
+        (21, 22),
+        (0, 4),
+        (1, 5),
+        (2, 6),
+        (3, 7),
+        (8, 12),
+        (9, 13),
+        (10, 14),
+        (11, 15),
+        (16, 20),
+        (17, 21),
+        (18, 22),
+        (19, 23),
+        (2, 4),
+        (3, 5),
+        (10, 12),
+        (11, 13),
+        (18, 20),
+        (19, 21),
+        (1, 2),
+        (3, 4),
+        (5, 6),
+        (9, 10),
+        (11, 12),
+        (13, 14),
+        (17, 18),
+        (19, 20),
+        (21, 22),
+        (0, 8),
+        (1, 9),
+        (2, 10),
+        (3, 11),
+        (4, 12),
+        (5, 13),
+        (6, 14),
+        (7, 15),
+        (4, 8),
+        (5, 9),
+        (6, 10),
+        (7, 11),
+        (2, 4),
+        (3, 5),
+        (6, 8),
+        (7, 9),
+        (10, 12),
+        (11, 13),
+        (18, 20),
+        (19, 21),
+        (1, 2),
+        (3, 4),
+        (5, 6),
+        (7, 8),
+        (9, 10),
+        (11, 12),
+        (13, 14),
+        (17, 18),
+        (19, 20),
+        (21, 22),
+        (0, 16),
+        (1, 17),
+        (2, 18),
+        (3, 19),
+        (4, 20),
+        (5, 21),
+        (6, 22),
+        (7, 23),
+        (8, 16),
+        (9, 17),
+        (10, 18),
+        (11, 19),
+        (12, 20),
+        (13, 21),
+        (14, 22),
+        (15, 23),
+        (4, 8),
+        (5, 9),
+        (6, 10),
+        (7, 11),
+        (12, 16),
+        (13, 17),
+        (14, 18),
+        (15, 19),
+        (2, 4),
+        (3, 5),
+        (6, 8),
+        (7, 9),
+        (10, 12),
+        (11, 13),
+        (14, 16),
+        (15, 17),
+        (18, 20),
+        (19, 21),
+        (1, 2),
+        (3, 4),
+        (5, 6),
+        (7, 8),
+        (9, 10),
+        (11, 12),
+        (13, 14),
+        (15, 16),
+        (17, 18),
+        (19, 20),
+        (21, 22),
+    ]
+);
+
 /// Sorts every lane of `cols` ascending (row `r` holds the `r`-th value of each lane) with a
 /// network from [`sorting_network`]. The values must not be NaN. Sorting the same values
 /// gives the same sequence whatever the algorithm, so this equals a per-pixel sort.
 fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
+    if let Ok(rows) = <&mut [[f32; LANES]; 24]>::try_from(&mut *cols) {
+        // The default 24 views: the fixed network (any sorting network sorts the same), with
+        // its rows in registers where the CPU has 32 vector registers (AVX-512VL), else in
+        // AVX2 with some of them spilled.
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl")
+            {
+                // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
+                unsafe { sort_24_avx512(rows) };
+                return;
+            }
+            if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2, checked just above.
+                unsafe { sort_24_avx2(rows) };
+                return;
+            }
+        }
+        apply_network_24(rows, compare_exchange);
+        return;
+    }
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -549,6 +748,38 @@ fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
 #[target_feature(enable = "avx2")]
 fn sort_lanes_avx2(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
     sort_lanes_body(cols, network);
+}
+
+/// The 24-row network compiled for AVX-512VL: 24 rows of 8 lanes in 24 of its 32 `ymm`
+/// registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn sort_24_avx512(rows: &mut [[f32; LANES]; 24]) {
+    sort_24_ymm(rows);
+}
+
+/// The 24-row network compiled for AVX2 (16 `ymm` registers: some rows spill).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sort_24_avx2(rows: &mut [[f32; LANES]; 24]) {
+    sort_24_ymm(rows);
+}
+
+/// The 24-row network on `ymm` registers. `min(b, a)` is `b < a ? b : a` and `max(a, b)` is
+/// `a > b ? a : b`, the selection of [`compare_exchange`] (for NaN too), so the same bits.
+/// Only inlined into functions compiled with AVX.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn sort_24_ymm(rows: &mut [[f32; LANES]; 24]) {
+    use std::arch::x86_64::{_mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_storeu_ps};
+    // SAFETY (all three blocks): the callers are compiled with AVX; each row is 8 `f32`.
+    let mut v = rows.map(|r| unsafe { _mm256_loadu_ps(r.as_ptr()) });
+    apply_network_24(&mut v, |a, b| unsafe {
+        (_mm256_min_ps(b, a), _mm256_max_ps(a, b))
+    });
+    for (r, x) in rows.iter_mut().zip(v) {
+        unsafe { _mm256_storeu_ps(r.as_mut_ptr(), x) };
+    }
 }
 
 #[inline(always)]
@@ -1144,6 +1375,54 @@ mod tests {
         // The pruned network is smaller (24 views: 132 pairs instead of 191).
         assert_eq!(sorting_network_for(24).len(), 132);
         assert_eq!(sorting_network(32).len(), 191);
+    }
+
+    #[test]
+    fn fixed_network_is_batchers() {
+        assert_eq!(NETWORK_24.to_vec(), sorting_network_for(24));
+    }
+
+    #[test]
+    fn the_fixed_network_sorts_like_the_loop_over_its_pairs() {
+        let net = sorting_network_for(24);
+        let mut st = 11u64;
+        for _ in 0..500 {
+            let cols: Vec<[f32; LANES]> = (0..24)
+                .map(|_| {
+                    std::array::from_fn(|_| match lcg(&mut st) % 6 {
+                        0 => f32::INFINITY,
+                        _ => (lcg(&mut st) % 40) as f32 * 0.07,
+                    })
+                })
+                .collect();
+            let mut want = cols.clone();
+            sort_lanes_body(&mut want, &net);
+            let bits = |c: &[[f32; LANES]]| -> Vec<u32> {
+                c.iter().flatten().map(|v| v.to_bits()).collect()
+            };
+            // Every build the machine can run, and the dispatching entry point.
+            let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
+            apply_network_24(&mut v, compare_exchange);
+            assert_eq!(bits(&v), bits(&want));
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::is_x86_feature_detected!("avx512vl") {
+                    let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
+                    // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
+                    unsafe { sort_24_avx512(&mut v) };
+                    assert_eq!(bits(&v), bits(&want), "avx512");
+                }
+                if std::is_x86_feature_detected!("avx2") {
+                    let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
+                    // SAFETY: the CPU has AVX2, checked just above.
+                    unsafe { sort_24_avx2(&mut v) };
+                    assert_eq!(bits(&v), bits(&want), "avx2");
+                }
+            }
+            let mut c = cols.clone();
+            sort_lanes(&mut c, &net);
+            assert_eq!(bits(&c), bits(&want));
+        }
     }
 
     #[test]
