@@ -57,6 +57,15 @@ fn bench(c: &mut Criterion) {
     c.bench_function("orb_extract_640x480_fr1_xyz", |b| {
         b.iter(|| black_box(orb.extract(black_box(&img))))
     });
+    // A later pass over the same frame: the FAST corners of the first pass are reused.
+    let mut corners = None;
+    black_box(orb.extract_cached(&img, None, &mut corners));
+    c.bench_function("orb_extract_640x480_fr1_xyz_corners_reused", |b| {
+        b.iter(|| black_box(orb.extract_cached(black_box(&img), None, &mut corners)))
+    });
+    c.bench_function("orb_fast_corners_640x480_fr1_xyz", |b| {
+        b.iter(|| black_box(orb.detect_corners(black_box(&img))))
+    });
     c.bench_function("vocab_load_embedded_default", |b| {
         b.iter(|| black_box(Vocabulary::embedded_default().ok()))
     });
