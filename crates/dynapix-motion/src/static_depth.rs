@@ -441,34 +441,150 @@ pub fn static_depth(
     let network = sorting_network_for(rows);
     let wu = w as usize;
     let mut depth = vec![f32::NAN; n];
-    depth.par_chunks_mut(wu).enumerate().for_each(|(j, row)| {
-        let mut cols = vec![[f32::INFINITY; LANES]; rows];
-        for i0 in (0..wu).step_by(LANES) {
-            let m = LANES.min(wu - i0);
-            let k0 = j * wu + i0;
-            for (c, s) in cols.iter_mut().zip(&splats) {
-                match s
-                    .get(k0..k0 + LANES)
-                    .and_then(|v| <&[f32; LANES]>::try_from(v).ok())
-                {
-                    // A whole block: a fixed-size copy, inlined instead of a `memmove` call.
-                    Some(v) if m == LANES => *c = *v,
-                    _ => {
-                        c[..m].copy_from_slice(&s[k0..k0 + m]);
-                        c[m..].fill(f32::INFINITY);
-                    }
-                }
-            }
-            sort_lanes(&mut cols, &network);
-            let lanes = farthest_supported_lanes(&cols, params);
-            row[i0..i0 + m].copy_from_slice(&lanes[..m]);
-        }
-    });
+    depth
+        .par_chunks_mut(wu)
+        .enumerate()
+        .for_each(|(j, row)| static_depth_row(&splats, &network, params, j, row));
     return_buffers(splats);
     Ok(StaticDepth {
         depth: FloatImage::from_raw(w, h, depth).unwrap_or_else(|| FloatImage::new(w, h)),
         factor,
     })
+}
+
+/// Row `j` of the static depth from the views' `splats` (each `row.len()` pixels wide),
+/// sorted by `network`. The default 24 views go straight from the splats into the registers
+/// of the fixed network ([`sort_24_ymm`]) in a build for AVX-512VL or AVX2, which also
+/// compiles the scan; the same operations on the same values, so the same depths (test
+/// `rows_of_24_views_equal_the_generic_rows`).
+fn static_depth_row(
+    splats: &[Vec<f32>],
+    network: &[(usize, usize)],
+    params: &StaticDepthParams,
+    j: usize,
+    row: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if let Ok(splats) = <&[Vec<f32>; 24]>::try_from(splats) {
+        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
+            // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
+            unsafe { static_depth_row_24_avx512(splats, params, j, row) };
+            return;
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, checked just above.
+            unsafe { static_depth_row_24_avx2(splats, params, j, row) };
+            return;
+        }
+    }
+    static_depth_row_any(splats, network, params, j, row);
+}
+
+/// [`static_depth_row`] for any number of views and any CPU: each block of [`LANES`] pixels
+/// is copied out of the splats, sorted by [`sort_lanes`] and scanned.
+fn static_depth_row_any(
+    splats: &[Vec<f32>],
+    network: &[(usize, usize)],
+    params: &StaticDepthParams,
+    j: usize,
+    row: &mut [f32],
+) {
+    let wu = row.len();
+    let mut cols = vec![[f32::INFINITY; LANES]; splats.len()];
+    for i0 in (0..wu).step_by(LANES) {
+        let m = LANES.min(wu - i0);
+        gather_block(splats, j * wu + i0, m, &mut cols);
+        sort_lanes(&mut cols, network);
+        let lanes = farthest_supported_lanes(&cols, params);
+        row[i0..i0 + m].copy_from_slice(&lanes[..m]);
+    }
+}
+
+/// Pixels `k0 .. k0 + m` (`m ≤ LANES`) of every splat into the rows of `cols`, the lanes
+/// past `m` filled with +∞ (no surface).
+#[inline(always)]
+fn gather_block(splats: &[Vec<f32>], k0: usize, m: usize, cols: &mut [[f32; LANES]]) {
+    for (c, s) in cols.iter_mut().zip(splats) {
+        match s
+            .get(k0..k0 + LANES)
+            .and_then(|v| <&[f32; LANES]>::try_from(v).ok())
+        {
+            // A whole block: a fixed-size copy, inlined instead of a `memmove` call.
+            Some(v) if m == LANES => *c = *v,
+            _ => {
+                let end = (k0 + m).min(s.len());
+                let got = end.saturating_sub(k0);
+                c[..got].copy_from_slice(&s[k0.min(end)..end]);
+                c[got..].fill(f32::INFINITY);
+            }
+        }
+    }
+}
+
+/// [`static_depth_row_24`] compiled for AVX-512VL (the 24 rows fit in its 32 registers).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn static_depth_row_24_avx512(
+    splats: &[Vec<f32>; 24],
+    params: &StaticDepthParams,
+    j: usize,
+    row: &mut [f32],
+) {
+    static_depth_row_24(splats, params, j, row);
+}
+
+/// [`static_depth_row_24`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn static_depth_row_24_avx2(
+    splats: &[Vec<f32>; 24],
+    params: &StaticDepthParams,
+    j: usize,
+    row: &mut [f32],
+) {
+    static_depth_row_24(splats, params, j, row);
+}
+
+/// [`static_depth_row_any`] for 24 views: whole blocks are loaded from the splats straight
+/// into the registers of the fixed network. Only inlined into functions compiled with AVX.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn static_depth_row_24(
+    splats: &[Vec<f32>; 24],
+    params: &StaticDepthParams,
+    j: usize,
+    row: &mut [f32],
+) {
+    use std::arch::x86_64::{
+        __m256, _mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_storeu_ps,
+    };
+    let wu = row.len();
+    let end = (j + 1) * wu;
+    let whole_rows = splats.iter().all(|s| s.len() >= end);
+    let mut cols = [[f32::INFINITY; LANES]; 24];
+    for i0 in (0..wu).step_by(LANES) {
+        let m = LANES.min(wu - i0);
+        let k0 = j * wu + i0;
+        if m == LANES && whole_rows {
+            // SAFETY: AVX is enabled in the callers; k0 + LANES ≤ end ≤ every splat's
+            // length, checked above.
+            let mut v: [__m256; 24] =
+                std::array::from_fn(|r| unsafe { _mm256_loadu_ps(splats[r].as_ptr().add(k0)) });
+            // SAFETY: AVX is enabled in the callers. The selection of `compare_exchange`.
+            apply_network_24(&mut v, |a, b| unsafe {
+                (_mm256_min_ps(b, a), _mm256_max_ps(a, b))
+            });
+            for (c, x) in cols.iter_mut().zip(v) {
+                // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
+                unsafe { _mm256_storeu_ps(c.as_mut_ptr(), x) };
+            }
+        } else {
+            gather_block(splats, k0, m, &mut cols);
+            sort_24_ymm(&mut cols);
+        }
+        let lanes = farthest_supported_lanes(&cols, params);
+        row[i0..i0 + m].copy_from_slice(&lanes[..m]);
+    }
 }
 
 /// Splat buffers kept between calls of [`static_depth`]: a sequence splats 24 views of the
@@ -736,6 +852,7 @@ fn farthest_supported_ascending(
 /// monotone, so the count is the run's length, as the step-by-step scan finds it) and the
 /// median taken from it; only lanes whose farthest value lacks support scan further, one at
 /// a time. The same values bit for bit (test `lane_scan_equals_the_scan_of_each_lane`).
+#[inline(always)]
 fn farthest_supported_lanes(cols: &[[f32; LANES]], params: &StaticDepthParams) -> [f32; LANES] {
     // Finite values per lane (they come first).
     let mut n_fin = [0u32; LANES];
@@ -1259,6 +1376,51 @@ mod tests {
         // The pruned network is smaller (24 views: 132 pairs instead of 191).
         assert_eq!(sorting_network_for(24).len(), 132);
         assert_eq!(sorting_network(32).len(), 191);
+    }
+
+    #[test]
+    fn rows_of_24_views_equal_the_generic_rows() {
+        let params = StaticDepthParams::default();
+        let net = sorting_network_for(24);
+        let mut st = 3u64;
+        // A width that is not a multiple of the block, and values that agree within the
+        // tolerance, some not; no surface (+∞) here and there.
+        let (w, h) = (43usize, 5usize);
+        let splats: Vec<Vec<f32>> = (0..24)
+            .map(|_| {
+                (0..w * h)
+                    .map(|_| match lcg(&mut st) % 7 {
+                        0 => f32::INFINITY,
+                        k => 1.0 + (lcg(&mut st) % 60) as f32 * 0.01 * k as f32,
+                    })
+                    .collect()
+            })
+            .collect();
+        let bits = |r: &[f32]| -> Vec<u32> { r.iter().map(|v| v.to_bits()).collect() };
+        for j in 0..h {
+            let mut want = vec![0f32; w];
+            static_depth_row_any(&splats, &net, &params, j, &mut want);
+            assert!(want.iter().any(|v| v.is_finite()) && want.iter().any(|v| v.is_nan()));
+            let mut got = vec![0f32; w];
+            static_depth_row(&splats, &net, &params, j, &mut got);
+            assert_eq!(bits(&got), bits(&want), "row {j}");
+            #[cfg(target_arch = "x86_64")]
+            {
+                let s24 = <&[Vec<f32>; 24]>::try_from(&splats[..]).unwrap();
+                if std::is_x86_feature_detected!("avx512f")
+                    && std::is_x86_feature_detected!("avx512vl")
+                {
+                    // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
+                    unsafe { static_depth_row_24_avx512(s24, &params, j, &mut got) };
+                    assert_eq!(bits(&got), bits(&want), "avx512 row {j}");
+                }
+                if std::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU has AVX2, checked just above.
+                    unsafe { static_depth_row_24_avx2(s24, &params, j, &mut got) };
+                    assert_eq!(bits(&got), bits(&want), "avx2 row {j}");
+                }
+            }
+        }
     }
 
     #[test]
