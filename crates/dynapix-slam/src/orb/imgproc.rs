@@ -47,6 +47,60 @@ fn linear_taps(src: usize, dst: usize) -> Vec<(usize, i32, i32)> {
         .collect()
 }
 
+/// [`linear_taps`] of a row as separate arrays, with the second source pixel clamped into
+/// the row: where the clamp applies its weight is 0 ([`linear_taps`] gives `a1 = 0` at the
+/// last pixel), so the blend is the same without a branch per pixel.
+struct HorizontalTaps {
+    /// Width of the source row: every index below is smaller.
+    src: usize,
+    s0: Vec<usize>,
+    s1: Vec<usize>,
+    a0: Vec<i32>,
+    a1: Vec<i32>,
+}
+
+impl HorizontalTaps {
+    fn new(src: usize, dst: usize) -> Self {
+        let taps = linear_taps(src, dst);
+        let last = src.saturating_sub(1);
+        Self {
+            src,
+            s0: taps.iter().map(|t| t.0).collect(),
+            s1: taps.iter().map(|t| (t.0 + 1).min(last)).collect(),
+            a0: taps.iter().map(|t| t.1).collect(),
+            a1: taps.iter().map(|t| t.2).collect(),
+        }
+    }
+
+    /// The horizontal pass of one source row into `out` (one value per destination pixel).
+    #[inline(always)]
+    fn apply(&self, row: &[u8], out: &mut [i32]) {
+        let n = out.len().min(self.s0.len());
+        let (s0, s1, a0, a1) = (&self.s0[..n], &self.s1[..n], &self.a0[..n], &self.a1[..n]);
+        let out = &mut out[..n];
+        if self.src == 0 || self.src > row.len() {
+            // Not a row of the image the taps were made for: out-of-row pixels read 0.
+            for i in 0..n {
+                let p0 = row.get(s0[i]).copied().unwrap_or(0) as i32;
+                let p1 = row.get(s1[i]).copied().unwrap_or(0) as i32;
+                out[i] = p0 * a0[i] + p1 * a1[i];
+            }
+            return;
+        }
+        for i in 0..n {
+            // SAFETY: every tap indexes a pixel below `self.src` (see `new`), and the row
+            // holds at least `self.src` pixels, checked above.
+            let (p0, p1) = unsafe {
+                (
+                    *row.get_unchecked(s0[i]) as i32,
+                    *row.get_unchecked(s1[i]) as i32,
+                )
+            };
+            out[i] = p0 * a0[i] + p1 * a1[i];
+        }
+    }
+}
+
 /// Bilinear downscale of `src` to `w × h` with OpenCV's fixed-point `INTER_LINEAR` arithmetic,
 /// compiled for AVX2 when the CPU has it (integer arithmetic: the same result in every build,
 /// test `resize_dispatch_equals_the_baseline_build`).
@@ -76,37 +130,34 @@ fn resize_linear_body(src: &Plane, w: usize, h: usize) -> Plane {
             data: vec![0; w * h],
         };
     }
-    let xt = linear_taps(src.w, w);
+    let xt = HorizontalTaps::new(src.w, w);
     let yt = linear_taps(src.h, h);
-    // Horizontal pass per needed source row (values scaled by 2^11), then the vertical blend.
-    let hrow = |sy: usize| -> Vec<i32> {
-        let row = &src.data[sy * src.w..(sy + 1) * src.w];
-        xt.iter()
-            .map(|&(sx, a0, a1)| {
-                let p0 = row[sx] as i32;
-                let p1 = if a1 != 0 { row[sx + 1] as i32 } else { 0 };
-                p0 * a0 + p1 * a1
-            })
-            .collect()
-    };
+    // Horizontal pass per needed source row (values scaled by 2^11) into two row buffers
+    // reused from row to row, then the vertical blend.
     let mut data = vec![0u8; w * h];
-    let mut cache: Option<(usize, Vec<i32>, Vec<i32>)> = None;
+    let (mut r0, mut r1) = (vec![0i32; w], vec![0i32; w]);
+    // The source rows held by r0 and r1.
+    let mut held: Option<usize> = None;
     for (dy, &(sy, b0, b1)) in yt.iter().enumerate() {
         let sy1 = (sy + 1).min(src.h - 1);
-        let (r0, r1) = match cache.take() {
-            Some((c, r0, r1)) if c == sy => (r0, r1),
-            Some((c, _, r1)) if c + 1 == sy => {
-                let n = hrow(sy1);
-                (r1, n)
+        let row = |y: usize| &src.data[y * src.w..(y + 1) * src.w];
+        match held {
+            Some(c) if c == sy => {}
+            Some(c) if c + 1 == sy => {
+                std::mem::swap(&mut r0, &mut r1);
+                xt.apply(row(sy1), &mut r1);
             }
-            _ => (hrow(sy), hrow(sy1)),
-        };
+            _ => {
+                xt.apply(row(sy), &mut r0);
+                xt.apply(row(sy1), &mut r1);
+            }
+        }
+        held = Some(sy);
         let out = &mut data[dy * w..(dy + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let v = ((b0 * (r0[x] >> 4)) >> 16) + ((b1 * (r1[x] >> 4)) >> 16) + 2;
+        for ((o, &p0), &p1) in out.iter_mut().zip(&r0).zip(&r1) {
+            let v = ((b0 * (p0 >> 4)) >> 16) + ((b1 * (p1 >> 4)) >> 16) + 2;
             *o = (v >> 2).clamp(0, 255) as u8;
         }
-        cache = Some((sy, r0, r1));
     }
     Plane { w, h, data }
 }
