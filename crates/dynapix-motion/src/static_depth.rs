@@ -454,7 +454,7 @@ pub fn static_depth(
 
 /// Row `j` of the static depth from the views' `splats` (each `row.len()` pixels wide),
 /// sorted by `network`. The default 24 views go straight from the splats into the registers
-/// of the fixed network ([`sort_24_ymm`]) in a build for AVX-512VL or AVX2, which also
+/// of the fixed network ([`network_24_ymm`]) in a build for AVX-512VL or AVX2, which also
 /// compiles the scan; the same operations on the same values, so the same depths (test
 /// `rows_of_24_views_equal_the_generic_rows`).
 fn static_depth_row(
@@ -555,9 +555,7 @@ fn static_depth_row_24(
     j: usize,
     row: &mut [f32],
 ) {
-    use std::arch::x86_64::{
-        __m256, _mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_storeu_ps,
-    };
+    use std::arch::x86_64::{__m256, _mm256_loadu_ps, _mm256_storeu_ps};
     let wu = row.len();
     let end = (j + 1) * wu;
     let whole_rows = splats.iter().all(|s| s.len() >= end);
@@ -565,22 +563,19 @@ fn static_depth_row_24(
     for i0 in (0..wu).step_by(LANES) {
         let m = LANES.min(wu - i0);
         let k0 = j * wu + i0;
-        if m == LANES && whole_rows {
+        let mut v: [__m256; 24] = if m == LANES && whole_rows {
             // SAFETY: AVX is enabled in the callers; k0 + LANES ≤ end ≤ every splat's
             // length, checked above.
-            let mut v: [__m256; 24] =
-                std::array::from_fn(|r| unsafe { _mm256_loadu_ps(splats[r].as_ptr().add(k0)) });
-            // SAFETY: AVX is enabled in the callers. The selection of `compare_exchange`.
-            apply_network_24(&mut v, |a, b| unsafe {
-                (_mm256_min_ps(b, a), _mm256_max_ps(a, b))
-            });
-            for (c, x) in cols.iter_mut().zip(v) {
-                // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
-                unsafe { _mm256_storeu_ps(c.as_mut_ptr(), x) };
-            }
+            std::array::from_fn(|r| unsafe { _mm256_loadu_ps(splats[r].as_ptr().add(k0)) })
         } else {
             gather_block(splats, k0, m, &mut cols);
-            sort_24_ymm(&mut cols);
+            // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
+            cols.map(|c| unsafe { _mm256_loadu_ps(c.as_ptr()) })
+        };
+        network_24_ymm(&mut v);
+        for (c, x) in cols.iter_mut().zip(v) {
+            // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
+            unsafe { _mm256_storeu_ps(c.as_mut_ptr(), x) };
         }
         let lanes = farthest_supported_lanes(&cols, params);
         row[i0..i0 + m].copy_from_slice(&lanes[..m]);
@@ -714,23 +709,8 @@ fixed_network!(apply_network_24, NETWORK_24, 24, [
 /// gives the same sequence whatever the algorithm, so this equals a per-pixel sort.
 fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
     if let Ok(rows) = <&mut [[f32; LANES]; 24]>::try_from(&mut *cols) {
-        // The default 24 views: the fixed network (any sorting network sorts the same), with
-        // its rows in registers where the CPU has 32 vector registers (AVX-512VL), else in
-        // AVX2 with some of them spilled.
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl")
-            {
-                // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
-                unsafe { sort_24_avx512(rows) };
-                return;
-            }
-            if std::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2, checked just above.
-                unsafe { sort_24_avx2(rows) };
-                return;
-            }
-        }
+        // The default 24 views: the fixed network (any sorting network sorts the same). With
+        // AVX2, [`static_depth_row`] sorts them in vector registers instead.
         apply_network_24(rows, compare_exchange);
         return;
     }
@@ -750,36 +730,18 @@ fn sort_lanes_avx2(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
     sort_lanes_body(cols, network);
 }
 
-/// The 24-row network compiled for AVX-512VL: 24 rows of 8 lanes in 24 of its 32 `ymm`
-/// registers.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn sort_24_avx512(rows: &mut [[f32; LANES]; 24]) {
-    sort_24_ymm(rows);
-}
-
-/// The 24-row network compiled for AVX2 (16 `ymm` registers: some rows spill).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn sort_24_avx2(rows: &mut [[f32; LANES]; 24]) {
-    sort_24_ymm(rows);
-}
-
 /// The 24-row network on `ymm` registers. `min(b, a)` is `b < a ? b : a` and `max(a, b)` is
 /// `a > b ? a : b`, the selection of [`compare_exchange`] (for NaN too), so the same bits.
-/// Only inlined into functions compiled with AVX.
+/// Only inlined into functions compiled with AVX (24 rows fit in the 32 registers of
+/// AVX-512VL; with AVX2's 16 some spill).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn sort_24_ymm(rows: &mut [[f32; LANES]; 24]) {
-    use std::arch::x86_64::{_mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_storeu_ps};
-    // SAFETY (all three blocks): the callers are compiled with AVX; each row is 8 `f32`.
-    let mut v = rows.map(|r| unsafe { _mm256_loadu_ps(r.as_ptr()) });
-    apply_network_24(&mut v, |a, b| unsafe {
+fn network_24_ymm(v: &mut [std::arch::x86_64::__m256; 24]) {
+    use std::arch::x86_64::{_mm256_max_ps, _mm256_min_ps};
+    // SAFETY: the callers are compiled with AVX.
+    apply_network_24(v, |a, b| unsafe {
         (_mm256_min_ps(b, a), _mm256_max_ps(a, b))
     });
-    for (r, x) in rows.iter_mut().zip(v) {
-        unsafe { _mm256_storeu_ps(r.as_mut_ptr(), x) };
-    }
 }
 
 #[inline(always)]
@@ -1385,7 +1347,7 @@ mod tests {
         let mut st = 3u64;
         // A width that is not a multiple of the block, and values that agree within the
         // tolerance, some not; no surface (+∞) here and there.
-        let (w, h) = (43usize, 5usize);
+        let (w, h) = (43usize, 60usize);
         let splats: Vec<Vec<f32>> = (0..24)
             .map(|_| {
                 (0..w * h)
@@ -1446,25 +1408,11 @@ mod tests {
             let bits = |c: &[[f32; LANES]]| -> Vec<u32> {
                 c.iter().flatten().map(|v| v.to_bits()).collect()
             };
-            // Every build the machine can run, and the dispatching entry point.
+            // The straight-line network and the dispatching entry point (the vector-register
+            // builds are compared in `rows_of_24_views_equal_the_generic_rows`).
             let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
             apply_network_24(&mut v, compare_exchange);
             assert_eq!(bits(&v), bits(&want));
-            #[cfg(target_arch = "x86_64")]
-            {
-                if std::is_x86_feature_detected!("avx512vl") {
-                    let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
-                    // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
-                    unsafe { sort_24_avx512(&mut v) };
-                    assert_eq!(bits(&v), bits(&want), "avx512");
-                }
-                if std::is_x86_feature_detected!("avx2") {
-                    let mut v: [[f32; LANES]; 24] = std::array::from_fn(|r| cols[r]);
-                    // SAFETY: the CPU has AVX2, checked just above.
-                    unsafe { sort_24_avx2(&mut v) };
-                    assert_eq!(bits(&v), bits(&want), "avx2");
-                }
-            }
             let mut c = cols.clone();
             sort_lanes(&mut c, &net);
             assert_eq!(bits(&c), bits(&want));
