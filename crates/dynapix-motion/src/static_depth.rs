@@ -338,10 +338,10 @@ fn splat_nearest_blocks<const DISTORTED: bool>(
             zs[k] = pz as f32;
         }
         for (&i, &zf) in idx[..n].iter().zip(&zs[..n]) {
-            if let Some(o) = out.get_mut(i as usize)
-                && zf < *o
-            {
-                *o = zf;
+            if let Some(o) = out.get_mut(i as usize) {
+                // The nearer surface, selected without a branch (which the order of the
+                // depths would make unpredictable): the same value as `if zf < *o`.
+                *o = if zf < *o { zf } else { *o };
             }
         }
     }
