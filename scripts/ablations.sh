@@ -33,6 +33,7 @@ echo 'slam: {params: {static_features_min_weight: null}}' > "$OUT/config/no_stat
 echo 'slam: {params: {tracking: {predicted_frames: 0}}}' > "$OUT/config/no_predicted.yaml"
 echo 'slam: {params: {final_pose_refinement: false}}' > "$OUT/config/no_final_refinement.yaml"
 echo 'motion: {rigidity: {flow_working_width: 0}}' > "$OUT/config/flow_full_level.yaml"
+echo 'motion: {rigidity: {shared_pairs: false}}' > "$OUT/config/own_pair_flows.yaml"
 declare -A ROWS=(
   [orbslam2]="--method orbslam2"
   [dynapix_shipped]="--method dynapix --config $OUT/config/shipped.yaml"
@@ -47,9 +48,10 @@ declare -A ROWS=(
   [no_predicted_tracking]="--method dynapix --config $OUT/config/no_predicted.yaml"
   [no_final_refinement]="--method dynapix --config $OUT/config/no_final_refinement.yaml"
   [flow_full_level]="--method dynapix --config $OUT/config/flow_full_level.yaml"
+  [own_pair_flows]="--method dynapix --config $OUT/config/own_pair_flows.yaml"
   [oracle_poses]="--method dynapix --oracle-poses"
 )
-ORDER="orbslam2 dynapix_shipped dynapix plus_paper_terms no_geometric no_rigidity_cue orbslam2_first_pass one_pass three_passes no_static_features no_predicted_tracking no_final_refinement flow_full_level oracle_poses"
+ORDER="orbslam2 dynapix_shipped dynapix plus_paper_terms no_geometric no_rigidity_cue orbslam2_first_pass one_pass three_passes no_static_features no_predicted_tracking no_final_refinement flow_full_level own_pair_flows oracle_poses"
 for row in ${*:-$ORDER}; do
   dir="$OUT/runs/$name/$row"
   [ -f "$dir/run.json" ] && continue

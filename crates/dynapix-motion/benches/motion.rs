@@ -12,7 +12,7 @@ use dynapix_io::Trajectory;
 use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
 use dynapix_motion::moving::to_gray;
 use dynapix_motion::rigidity::{
-    RigidityParams, camera_rays, correspondences, dense_residual, fit_rigid_motion,
+    RigidityParams, camera_rays, correspondences, dense_residual, fit_rigid_motion, reverse_flow,
 };
 use dynapix_motion::static_depth::{
     DepthView, StaticDepthParams, WorkingDepth, geometric_term, static_depth,
@@ -178,6 +178,10 @@ fn bench(c: &mut Criterion) {
     let fit = fit_rigid_motion(&corr, &cam, &rp).unwrap();
     g.bench_function("rigidity_residual", |b| {
         b.iter(|| dense_residual(depth, d2, &f02, &rays, &fit.motion, &rp).unwrap())
+    });
+    // With shared pairs, what the later frame adds: the flow turned around.
+    g.bench_function("rigidity_reverse_flow", |b| {
+        b.iter(|| reverse_flow(&f02, depth, &rays, &fit.motion, &rp).unwrap())
     });
     g.finish();
 }

@@ -48,8 +48,9 @@ pub use combine::noisy_or;
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use rigidity::{
-    Correspondences, RigidFit, RigidFitError, RigidFrame, RigidityMaps, RigidityParams,
-    rigidity_probability, rigidity_probability_with,
+    Correspondences, PairResiduals, RigidFit, RigidFitError, RigidFrame, RigidityMaps,
+    RigidityParams, pair_residuals, reverse_flow, rigidity_from_pairs, rigidity_probability,
+    rigidity_probability_with,
 };
 pub use sequence::{
     Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion,

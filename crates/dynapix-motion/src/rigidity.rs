@@ -106,6 +106,17 @@ pub struct RigidityParams {
     /// Smallest inlier fraction of a pair's best motion (0.5): below it movers may be the
     /// majority and the pair is ambiguous, so it gives no evidence.
     pub min_inlier_fraction: f64,
+    /// Each frame pair's flow and fit computed once, for both frames (true, the default
+    /// since 2026-12-04), instead of each frame computing its own flow to each neighbour
+    /// (false). The earlier frame `a` of a pair gets the residual of [`pair_residuals`]
+    /// directly; the later frame `b` gets the residual of the flow a → b turned around
+    /// ([`reverse_flow`]) under the inverse motion. Half the flows and fits: −9 to −13 % CPU
+    /// of an offline run on the Bonn window and fr1_xyz, with ATE means over three RANSAC
+    /// seeds within +2 % there and +0.7 % on synth walking_xyz 640×480 s0–s2 (BENCHMARKS.md,
+    /// "Each frame pair's rigidity flow once"). Offline sequence runs honour it; the
+    /// per-frame functions of this module and the online system, where a pair without
+    /// lookahead serves one frame only, compute their own flows.
+    pub shared_pairs: bool,
 }
 
 impl Default for RigidityParams {
@@ -131,6 +142,7 @@ impl Default for RigidityParams {
             r1: 8.0,
             offsets: vec![-4, -1, 1, 4],
             min_inlier_fraction: 0.5,
+            shared_pairs: true,
         }
     }
 }
@@ -409,6 +421,19 @@ pub fn residual_squared(
     Model::new(cam, params).r2(&p, [b.x / b.z, b.y / b.z], b.z)
 }
 
+/// Checks that `flow` has the image size `size` and one vector per pixel.
+fn check_flow(flow: &FlowField, size: (u32, u32)) -> Result<(), MotionError> {
+    check_size("flow", size, (flow.width, flow.height))?;
+    if flow.data.len() != size.0 as usize * size.1 as usize {
+        return Err(MotionError::SizeMismatch {
+            what: "flow data".into(),
+            expected: size,
+            got: (flow.data.len() as u32, 1),
+        });
+    }
+    Ok(())
+}
+
 /// One frame pair with its flow, for the per-pixel look-ups shared by the correspondences
 /// and the dense residual.
 struct Pair<'a> {
@@ -438,14 +463,7 @@ impl<'a> Pair<'a> {
         let size = (cam.width, cam.height);
         check_size("depth of frame i", size, depth_i.dimensions())?;
         check_size("depth of the neighbour", size, depth_j.dimensions())?;
-        check_size("flow", size, (flow.width, flow.height))?;
-        if flow.data.len() != cam.width as usize * cam.height as usize {
-            return Err(MotionError::SizeMismatch {
-                what: "flow data".into(),
-                expected: size,
-                got: (flow.data.len() as u32, 1),
-            });
-        }
+        check_flow(flow, size)?;
         Ok(Self {
             depth_i,
             depth_j,
@@ -1029,53 +1047,111 @@ pub fn rigidity_probability_with(
         check_size("grey image of a neighbour", size, nb.gray.dimensions())?;
         check_size("depth image of a neighbour", size, nb.depth.dimensions())?;
     }
-    let rays = camera_rays(cam);
-    type PairOut = (Result<RigidFit, RigidFitError>, Option<FloatImage>);
-    let per_neighbour: Vec<Result<PairOut, MotionError>> = neighbours
+    let per_neighbour: Vec<Result<PairResiduals, MotionError>> = neighbours
         .par_iter()
-        .map(|nb| {
-            let f = {
-                let _stage =
-                    tracing::info_span!(target: "dynapix::stage", "rigidity: flow").entered();
-                flow.flow(cur.gray, nb.gray)?
-            };
-            let fit_stage =
-                tracing::info_span!(target: "dynapix::stage", "rigidity: fit").entered();
-            let corr = correspondences(cur.depth, nb.depth, &f, &rays, params)?;
-            let fit = match fit_rigid_motion(&corr, cam, params) {
-                Ok(fit) if fit.inlier_fraction() < params.min_inlier_fraction => {
-                    Err(RigidFitError::Ambiguous {
-                        fraction: fit.inlier_fraction(),
-                        needed: params.min_inlier_fraction,
-                    })
-                }
-                Ok(fit) => Ok(fit),
-                Err(MotionError::RigidFit(e)) => Err(e),
-                Err(e) => return Err(e),
-            };
-            drop(fit_stage);
-            let _stage =
-                tracing::info_span!(target: "dynapix::stage", "rigidity: residual").entered();
-            let residual = match &fit {
-                Ok(fit) => Some(dense_residual(
-                    cur.depth,
-                    nb.depth,
-                    &f,
-                    &rays,
-                    &fit.motion,
-                    params,
-                )?),
-                Err(_) => None,
-            };
-            Ok((fit, residual))
-        })
+        .map(|nb| pair_residuals(cur, nb, cam, flow, params, false))
         .collect();
-    let mut fits = Vec::with_capacity(neighbours.len());
-    let mut residuals = Vec::with_capacity(neighbours.len());
+    let mut pairs = Vec::with_capacity(neighbours.len());
     for (r, nb) in per_neighbour.into_iter().zip(neighbours) {
-        let (fit, residual) = r?;
+        let pair = r?;
+        pairs.push((nb.offset, pair.fit, pair.forward));
+    }
+    rigidity_from_pairs(pairs, size, params)
+}
+
+/// What one frame pair (a, b) gives: the fit of a → b, the residual of a's pixels and, when
+/// asked for, the residual of b's pixels.
+#[derive(Clone, Debug)]
+pub struct PairResiduals {
+    /// The motion a → b, or why there is none (an ambiguous fit counts as none).
+    pub fit: Result<RigidFit, RigidFitError>,
+    /// [`dense_residual`] of a's pixels under the fit, with the flow a → b; `None` without a
+    /// fit.
+    pub forward: Option<FloatImage>,
+    /// The residual of b's pixels: [`dense_residual`] of b against a with [`reverse_flow`]
+    /// under the inverse fit; `None` without a fit or when not asked for.
+    pub backward: Option<FloatImage>,
+}
+
+impl PairResiduals {
+    /// The fit as b sees it: the motion b → a (the inverse of [`PairResiduals::fit`]).
+    pub fn inverse_fit(&self) -> Result<RigidFit, RigidFitError> {
+        self.fit.clone().map(|f| RigidFit {
+            motion: f.motion.inverse(),
+            ..f
+        })
+    }
+}
+
+/// The flow a → b, the rigid fit and the residuals of the pair: [`correspondences`],
+/// [`fit_rigid_motion`] (a fit below [`RigidityParams::min_inlier_fraction`] is
+/// [`RigidFitError::Ambiguous`]) and [`dense_residual`]; with `with_backward`, also the
+/// residual of b's pixels through the flow a → b turned around ([`PairResiduals::backward`]).
+pub fn pair_residuals(
+    a: &RigidFrame<'_>,
+    b: &RigidFrame<'_>,
+    cam: &PinholeCamera,
+    flow: &dyn FlowProvider,
+    params: &RigidityParams,
+    with_backward: bool,
+) -> Result<PairResiduals, MotionError> {
+    let rays = camera_rays(cam);
+    let f = {
+        let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: flow").entered();
+        flow.flow(a.gray, b.gray)?
+    };
+    let fit_stage = tracing::info_span!(target: "dynapix::stage", "rigidity: fit").entered();
+    let corr = correspondences(a.depth, b.depth, &f, &rays, params)?;
+    let fit = match fit_rigid_motion(&corr, cam, params) {
+        Ok(fit) if fit.inlier_fraction() < params.min_inlier_fraction => {
+            Err(RigidFitError::Ambiguous {
+                fraction: fit.inlier_fraction(),
+                needed: params.min_inlier_fraction,
+            })
+        }
+        Ok(fit) => Ok(fit),
+        Err(MotionError::RigidFit(e)) => Err(e),
+        Err(e) => return Err(e),
+    };
+    drop(fit_stage);
+    let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: residual").entered();
+    let Ok(good) = &fit else {
+        return Ok(PairResiduals {
+            fit,
+            forward: None,
+            backward: None,
+        });
+    };
+    let forward = dense_residual(a.depth, b.depth, &f, &rays, &good.motion, params)?;
+    let backward = if with_backward {
+        let g = reverse_flow(&f, a.depth, &rays, &good.motion, params)?;
+        let inverse = good.motion.inverse();
+        Some(dense_residual(
+            b.depth, a.depth, &g, &rays, &inverse, params,
+        )?)
+    } else {
+        None
+    };
+    Ok(PairResiduals {
+        fit,
+        forward: Some(forward),
+        backward,
+    })
+}
+
+/// The rigidity maps of a frame of size `size` from its neighbours' fits and residuals, each
+/// with its frame offset (see [`rigidity_from_residuals`]); P is 0 everywhere without any
+/// residual.
+pub fn rigidity_from_pairs(
+    pairs: Vec<(i64, Result<RigidFit, RigidFitError>, Option<FloatImage>)>,
+    size: (u32, u32),
+    params: &RigidityParams,
+) -> Result<RigidityMaps, MotionError> {
+    let mut fits = Vec::with_capacity(pairs.len());
+    let mut residuals = Vec::with_capacity(pairs.len());
+    for (offset, fit, residual) in pairs {
         fits.push(fit);
-        residuals.extend(residual.map(|r| (nb.offset.unsigned_abs(), r)));
+        residuals.extend(residual.map(|r| (offset.unsigned_abs(), r)));
     }
     let (p, residual) = if residuals.is_empty() {
         (
@@ -1086,6 +1162,86 @@ pub fn rigidity_probability_with(
         rigidity_from_residuals(&residuals, params)?
     };
     Ok(RigidityMaps { p, residual, fits })
+}
+
+/// The flow b → a on b's pixel grid from the flow a → b: each pixel x of frame a with depth
+/// above [`RigidityParams::min_depth`] and a ray whose target `x + f(x)` lies inside the image
+/// gives the flow `−f(x)` to the four pixels around its target (so a stretching flow leaves
+/// no holes). Where several pixels of a reach one pixel of b, the one nearest camera b after
+/// `motion` (a → b) wins, as in a depth buffer: depths compared in f32, those at or behind
+/// camera b as 0, ties to the first pixel in row order. Pixels of b that no pixel of a
+/// reaches get NaN flow, which [`dense_residual`] treats as no correspondence.
+pub fn reverse_flow(
+    flow: &FlowField,
+    depth_a: &FloatImage,
+    rays: &PixelRays,
+    motion: &Se3,
+    params: &RigidityParams,
+) -> Result<FlowField, MotionError> {
+    let cam = rays.camera();
+    let size = (cam.width, cam.height);
+    check_size("depth of frame a", size, depth_a.dimensions())?;
+    check_flow(flow, size)?;
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    // Only the depth after the motion matters: the third row of R·p + t.
+    let rm = motion.rotation.to_rotation_matrix();
+    let m = rm.matrix();
+    let (r20, r21, r22, tz) = (m[(2, 0)], m[(2, 1)], m[(2, 2)], motion.translation.vector.z);
+    let (xmax, ymax) = ((w.max(1) - 1) as f64, (h.max(1) - 1) as f64);
+    // The depth buffer: per pixel of b, the depth (f32) and the index of the nearest pixel
+    // of a so far in one key, `depth bits << 32 | index`, so the smallest key is the nearest
+    // pixel and, among equal depths, the first. A depth at or below zero (behind camera b)
+    // counts as 0: the bits of a non-negative f32 order like the numbers.
+    let mut nearest = vec![u64::MAX; w * h];
+    let min_depth = params.min_depth;
+    for y in 0..h {
+        let row = y * w..(y + 1) * w;
+        let (za, ra, fa) = (
+            &depth_a.as_raw()[row.clone()],
+            &rays.all()[row.clone()],
+            &flow.data[row],
+        );
+        for (x, ((&z, ray), f)) in za.iter().zip(ra).zip(fa).enumerate() {
+            let z = z as f64;
+            let (u2, v2) = (x as f64 + f[0] as f64, y as f64 + f[1] as f64);
+            let valid = !(z.is_nan() || z <= min_depth)
+                & ray[0].is_finite()
+                & (0.0..=xmax).contains(&u2)
+                & (0.0..=ymax).contains(&v2);
+            if !valid {
+                continue;
+            }
+            let zb = r20 * (ray[0] * z) + r21 * (ray[1] * z) + r22 * z + tz;
+            let zb = if zb > 0.0 { zb as f32 } else { 0.0 };
+            let key = ((zb.to_bits() as u64) << 32) | (y * w + x) as u64;
+            // The four pixels around the target: a stretching flow leaves no holes.
+            // SAFETY: 0 ≤ u2 ≤ xmax and 0 ≤ v2 ≤ ymax (checked above), so both truncate
+            // into u32 (a single instruction, where `as` would add saturation checks).
+            let (u0, v0) = unsafe {
+                (
+                    u2.to_int_unchecked::<u32>() as usize,
+                    v2.to_int_unchecked::<u32>() as usize,
+                )
+            };
+            let (u1, v1) = ((u0 + 1).min(w - 1), (v0 + 1).min(h - 1));
+            for t in [v0 * w + u0, v0 * w + u1, v1 * w + u0, v1 * w + u1] {
+                let n = &mut nearest[t];
+                *n = (*n).min(key);
+            }
+        }
+    }
+    let data = nearest
+        .iter()
+        .map(|&key| match flow.data.get((key & 0xffff_ffff) as usize) {
+            Some(f) if key != u64::MAX => [-f[0], -f[1]],
+            _ => [f32::NAN; 2],
+        })
+        .collect();
+    Ok(FlowField {
+        width: cam.width,
+        height: cam.height,
+        data,
+    })
 }
 
 #[cfg(test)]
@@ -1682,6 +1838,141 @@ mod tests {
         let wrong = se3([0.0; 3], [-0.2, 0.0, 0.0]);
         let r = dense_residual(&depth, &depth, &flow, &rays, &wrong, &params).unwrap();
         assert!(r.iter().filter(|v| !v.is_nan()).all(|&v| v > 8.0));
+    }
+
+    #[test]
+    fn the_reversed_flow_of_a_translating_camera_has_no_residual() {
+        // The plane of the test above, seen from camera j: the flow j → i is the constant
+        // −du, so the reversed flow is −du wherever a pixel of i lands, and the inverse of the
+        // fit explains it.
+        let cam = small_camera();
+        let rays = camera_rays(&cam);
+        let (w, h) = (cam.width, cam.height);
+        let depth = FloatImage::from_pixel(w, h, image::Luma([2.0]));
+        let du = (cam.fx * 0.05 / 2.0) as f32;
+        let flow = FlowField::constant(w, h, [du, 0.0]);
+        let params = RigidityParams::default();
+        let motion = se3([0.0; 3], [0.05, 0.0, 0.0]);
+        let narrow = FloatImage::new(w - 1, h);
+        assert!(matches!(
+            reverse_flow(&flow, &narrow, &rays, &motion, &params),
+            Err(MotionError::SizeMismatch { .. })
+        ));
+        let g = reverse_flow(&flow, &depth, &rays, &motion, &params).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let v = g.get(x, y);
+                // Pixel x of j is reached from x − du of i, rounded: from x ≥ round(du).
+                if x as f32 >= du.round() {
+                    assert_eq!(v, [-du, -0.0], "({x}, {y})");
+                } else {
+                    assert!(v[0].is_nan() && v[1].is_nan(), "({x}, {y}): {v:?}");
+                }
+            }
+        }
+        let r = dense_residual(&depth, &depth, &g, &rays, &motion.inverse(), &params).unwrap();
+        let defined: Vec<f32> = r.iter().copied().filter(|v| !v.is_nan()).collect();
+        assert!(
+            defined.len() > (w as usize - 10) * h as usize,
+            "{}",
+            defined.len()
+        );
+        assert!(defined.iter().all(|&v| v < 0.05));
+    }
+
+    #[test]
+    fn the_reversed_flow_keeps_the_nearer_of_two_pixels_landing_together() {
+        let cam = small_camera();
+        let rays = camera_rays(&cam);
+        let (w, h) = (cam.width, cam.height);
+        let params = RigidityParams::default();
+        // Pixel (10, 5) moves right by one onto (11, 5), which stays put.
+        let mut flow = FlowField::constant(w, h, [0.0, 0.0]);
+        flow.data[5 * w as usize + 10] = [1.0, 0.0];
+        let at = |near_moves: bool| {
+            let mut depth = FloatImage::from_pixel(w, h, image::Luma([3.0]));
+            let (mover, still) = if near_moves { (1.0, 2.0) } else { (2.0, 1.0) };
+            depth.put_pixel(10, 5, image::Luma([mover]));
+            depth.put_pixel(11, 5, image::Luma([still]));
+            let g = reverse_flow(&flow, &depth, &rays, &Se3::identity(), &params).unwrap();
+            (g.get(10, 5), g.get(11, 5))
+        };
+        // Each pixel covers the four pixels around its target, (11, 5) to (12, 6) for both;
+        // the vacated (10, 5) is covered by its still neighbours (9, 5), (10, 4), (9, 4).
+        let (left, right) = at(true);
+        assert_eq!(left, [-0.0, -0.0]);
+        assert_eq!(right, [-1.0, -0.0]);
+        let (left, right) = at(false);
+        assert_eq!(left, [-0.0, -0.0]);
+        assert_eq!(right, [-0.0, -0.0]);
+    }
+
+    #[test]
+    fn the_reversed_flow_of_a_stretching_flow_has_no_holes() {
+        // Frame j sees the image of i stretched by 1.5 across: target x' = 1.5·x. Rounded
+        // targets would skip every third pixel; the four-pixel footprint covers them all.
+        let cam = small_camera();
+        let rays = camera_rays(&cam);
+        let (w, h) = (cam.width, cam.height);
+        let params = RigidityParams::default();
+        let depth = FloatImage::from_pixel(w, h, image::Luma([2.0]));
+        let mut flow = FlowField::constant(w, h, [0.0, 0.0]);
+        for (k, f) in flow.data.iter_mut().enumerate() {
+            *f = [0.5 * (k % w as usize) as f32, 0.0];
+        }
+        let g = reverse_flow(&flow, &depth, &rays, &Se3::identity(), &params).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                assert!(!g.get(x, y)[0].is_nan(), "hole at ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn the_backward_residual_separates_walkers_like_the_frames_own_flow() {
+        // The later frame b of a pair (a, b) three or four frames apart: its P from its own
+        // flow b → a, and from the flow a → b turned around (shared pairs).
+        let s = synth();
+        let params = RigidityParams::default();
+        let frame = |i: usize| RigidFrame {
+            gray: &s.frames[i].0,
+            depth: &s.frames[i].1,
+            offset: 0,
+        };
+        let dis = params.flow_for_width(s.cam.width);
+        let size = (s.cam.width, s.cam.height);
+        let mut own = RocAccumulator::new(0.5);
+        let mut shared = RocAccumulator::new(0.5);
+        for (a, b) in [(0, 3), (0, 4), (1, 4)] {
+            let mask = s.frames[b].2.as_raw();
+            let add = |roc: &mut RocAccumulator, p: &FloatImage| {
+                // Fast movers against the static scene; slow mover pixels left out.
+                let (p, pos): (Vec<f32>, Vec<bool>) = p
+                    .iter()
+                    .zip(mask)
+                    .filter(|(_, m)| **m != 128)
+                    .map(|(p, m)| (*p, *m == 255))
+                    .unzip();
+                roc.add(&p, &pos);
+            };
+            let direct =
+                pair_residuals(&frame(b), &frame(a), &s.cam, &dis, &params, false).unwrap();
+            assert!(direct.backward.is_none());
+            let maps = rigidity_from_pairs(vec![(-4, direct.fit, direct.forward)], size, &params);
+            add(&mut own, &maps.unwrap().p);
+            let pair = pair_residuals(&frame(a), &frame(b), &s.cam, &dis, &params, true).unwrap();
+            let maps =
+                rigidity_from_pairs(vec![(-4, pair.inverse_fit(), pair.backward)], size, &params);
+            let maps = maps.unwrap();
+            assert!(maps.fits.iter().all(|f| f.is_ok()));
+            add(&mut shared, &maps.p);
+        }
+        let (a_own, a_shared) = (own.auc().unwrap(), shared.auc().unwrap());
+        eprintln!(
+            "walkers against the static scene: AUC {a_own:.3} own flow, {a_shared:.3} shared"
+        );
+        assert!(a_shared > 0.85, "{a_shared}");
+        assert!(a_shared > a_own - 0.03, "{a_shared} against {a_own}");
     }
 
     #[test]

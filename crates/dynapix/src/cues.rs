@@ -18,7 +18,10 @@ use dynapix_geometry::{PinholeCamera, Se3};
 use dynapix_io::MotionProbability;
 use dynapix_motion::moving::to_gray;
 use dynapix_motion::static_depth::{WorkingDepth, geometric_frame};
-use dynapix_motion::{FloatImage, RigidFrame, RigidityParams, StaticDepthParams};
+use dynapix_motion::{
+    FloatImage, PairResiduals, RigidFit, RigidFitError, RigidFrame, RigidityParams,
+    StaticDepthParams,
+};
 use image::GrayImage;
 use rayon::prelude::*;
 use serde_json::{Value, json};
@@ -53,6 +56,19 @@ pub struct RigidityStats {
 }
 
 impl RigidityStats {
+    /// The counts of one frame's fits.
+    fn of(fits: &[std::result::Result<RigidFit, RigidFitError>]) -> Self {
+        let mut stats = Self::default();
+        for f in fits {
+            match f {
+                Ok(_) => stats.pairs_used += 1,
+                Err(RigidFitError::Ambiguous { .. }) => stats.pairs_ambiguous += 1,
+                Err(_) => stats.pairs_failed += 1,
+            }
+        }
+        stats
+    }
+
     fn add(&mut self, o: RigidityStats) {
         self.pairs_used += o.pairs_used;
         self.pairs_ambiguous += o.pairs_ambiguous;
@@ -113,7 +129,71 @@ impl<'a> RigidityJob<'a> {
             .collect()
     }
 
-    /// P of frame `i` with the frames in `loaded` (which must hold `i` and its neighbours).
+    /// The frame pairs `(a, b)`, `a < b`, whose fits frame `i` needs (one per neighbour).
+    fn pairs_of(&self, i: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.neighbours(i)
+            .into_iter()
+            .map(move |(_, j)| (i.min(j), i.max(j)))
+    }
+
+    /// The fits and residuals of the pairs `keys` (computed in parallel, each once, in both
+    /// directions when the later frame needs the earlier), with the frames in `loaded`.
+    fn compute_pairs(
+        &self,
+        keys: &[(usize, usize)],
+        loaded: &HashMap<usize, GrayDepth>,
+        cam: &PinholeCamera,
+        flow: &DisFlow,
+    ) -> Result<Vec<((usize, usize), PairResiduals)>> {
+        let out: Vec<Result<((usize, usize), PairResiduals)>> = keys
+            .par_iter()
+            .map(|&(a, b)| {
+                let ga = get_loaded(loaded, a)?;
+                let gb = get_loaded(loaded, b)?;
+                let backward = self.neighbours(b).iter().any(|&(_, j)| j == a);
+                let pair = dynapix_motion::pair_residuals(
+                    &rigid_frame(ga, 0),
+                    &rigid_frame(gb, b as i64 - a as i64),
+                    cam,
+                    flow,
+                    &self.params,
+                    backward,
+                )
+                .map_err(|e| Error::Input(format!("frames {a} and {b}: rigidity: {e}")))?;
+                Ok(((a, b), pair))
+            })
+            .collect();
+        out.into_iter().collect()
+    }
+
+    /// P of frame `i` from the shared pairs in `pairs` (which must hold every pair of
+    /// [`RigidityJob::pairs_of`]): the earlier frame of a pair takes its forward residual,
+    /// the later one its backward residual, under the inverse motion.
+    fn frame_from_pairs(
+        &self,
+        i: usize,
+        pairs: &HashMap<(usize, usize), PairResiduals>,
+        cam: &PinholeCamera,
+    ) -> Result<(FloatImage, RigidityStats)> {
+        let mut per = Vec::new();
+        for (o, j) in self.neighbours(i) {
+            let key = (i.min(j), i.max(j));
+            let pair = pairs
+                .get(&key)
+                .ok_or_else(|| Error::Input(format!("rigidity: pair {key:?} not computed")))?;
+            per.push(if j > i {
+                (o, pair.fit.clone(), pair.forward.clone())
+            } else {
+                (o, pair.inverse_fit(), pair.backward.clone())
+            });
+        }
+        let maps = dynapix_motion::rigidity_from_pairs(per, (cam.width, cam.height), &self.params)
+            .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
+        Ok((maps.p, RigidityStats::of(&maps.fits)))
+    }
+
+    /// P of frame `i` with the frames in `loaded` (which must hold `i` and its neighbours),
+    /// each frame computing its own flows.
     fn frame_with(
         &self,
         i: usize,
@@ -121,41 +201,17 @@ impl<'a> RigidityJob<'a> {
         cam: &PinholeCamera,
         flow: &DisFlow,
     ) -> Result<(FloatImage, RigidityStats)> {
-        let get = |k: usize| {
-            loaded
-                .get(&k)
-                .ok_or_else(|| Error::Input(format!("rigidity: frame {k} not loaded")))
-        };
-        let cur = get(i)?;
+        let cur = get_loaded(loaded, i)?;
         let nbs: Vec<(i64, GrayDepth)> = self
             .neighbours(i)
             .into_iter()
-            .map(|(o, j)| Ok((o, get(j)?.clone())))
+            .map(|(o, j)| Ok((o, get_loaded(loaded, j)?.clone())))
             .collect::<Result<_>>()?;
-        let frames: Vec<RigidFrame<'_>> = nbs
-            .iter()
-            .map(|(o, g)| RigidFrame {
-                gray: &g.0,
-                depth: &g.1,
-                offset: *o,
-            })
-            .collect();
-        let me = RigidFrame {
-            gray: &cur.0,
-            depth: &cur.1,
-            offset: 0,
-        };
+        let frames: Vec<RigidFrame<'_>> = nbs.iter().map(|(o, g)| rigid_frame(g, *o)).collect();
+        let me = rigid_frame(cur, 0);
         let maps = dynapix_motion::rigidity_probability_with(&me, &frames, cam, flow, &self.params)
             .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
-        let mut stats = RigidityStats::default();
-        for f in &maps.fits {
-            match f {
-                Ok(_) => stats.pairs_used += 1,
-                Err(dynapix_motion::RigidFitError::Ambiguous { .. }) => stats.pairs_ambiguous += 1,
-                Err(_) => stats.pairs_failed += 1,
-            }
-        }
-        Ok((maps.p, stats))
+        Ok((maps.p, RigidityStats::of(&maps.fits)))
     }
 
     /// P of frame `i` (loads the frame and its neighbours).
@@ -167,14 +223,21 @@ impl<'a> RigidityJob<'a> {
         }
         let cam = self.input.camera.pinhole();
         let flow = self.params.flow_for_width(cam.width);
+        if self.params.shared_pairs {
+            let keys: Vec<(usize, usize)> = self.pairs_of(i).collect();
+            let pairs = self.compute_pairs(&keys, &loaded, &cam, &flow)?;
+            let pairs: HashMap<_, _> = pairs.into_iter().collect();
+            return Ok(self.frame_from_pairs(i, &pairs, &cam)?.0);
+        }
         Ok(self.frame_with(i, &loaded, &cam, &flow)?.0)
     }
 
     /// Computes every frame, in parallel chunks in frame order (each frame's images are
     /// decoded once per chunk that needs them); `each` gets every frame's P on the thread
     /// that computed it (so writing the maps is parallel too), in no particular order within
-    /// a chunk. The first error in frame order is returned. Bad frames
-    /// ([`Input::bad_frames`]) get no map.
+    /// a chunk. With [`RigidityParams::shared_pairs`], the pairs a chunk needs are computed
+    /// first, each once, and kept until their later frame is done. The first error in frame
+    /// order is returned. Bad frames ([`Input::bad_frames`]) get no map.
     pub fn run(
         &self,
         progress: &dyn Progress,
@@ -194,6 +257,7 @@ impl<'a> RigidityJob<'a> {
         let all: Vec<usize> = (0..n).filter(|&i| !self.input.is_bad(i)).collect();
         let task = Task::begin(progress, label, all.len());
         let mut loaded: HashMap<usize, GrayDepth> = HashMap::new();
+        let mut pairs: HashMap<(usize, usize), PairResiduals> = HashMap::new();
         let mut stats = RigidityStats::default();
         for frames in all.chunks(chunk) {
             let mut need: Vec<usize> = frames
@@ -218,10 +282,22 @@ impl<'a> RigidityJob<'a> {
                 let (k, g) = r?;
                 loaded.insert(k, g);
             }
+            if self.params.shared_pairs {
+                let mut keys: Vec<(usize, usize)> =
+                    frames.iter().flat_map(|&i| self.pairs_of(i)).collect();
+                keys.sort_unstable();
+                keys.dedup();
+                keys.retain(|k| !pairs.contains_key(k));
+                pairs.extend(self.compute_pairs(&keys, &loaded, &cam, &flow)?);
+            }
             let out: Vec<Result<RigidityStats>> = frames
                 .par_iter()
                 .map(|&i| {
-                    let (p, s) = self.frame_with(i, &loaded, &cam, &flow)?;
+                    let (p, s) = if self.params.shared_pairs {
+                        self.frame_from_pairs(i, &pairs, &cam)?
+                    } else {
+                        self.frame_with(i, &loaded, &cam, &flow)?
+                    };
                     each(i, p)?;
                     Ok(s)
                 })
@@ -230,8 +306,28 @@ impl<'a> RigidityJob<'a> {
                 stats.add(s?);
                 task.step("");
             }
+            // Both frames of a pair are done once its later frame is.
+            if let Some(&last) = frames.last() {
+                pairs.retain(|&(_, b), _| b > last);
+            }
         }
         Ok(stats)
+    }
+}
+
+/// Frame `k` of `loaded`, or an error naming it.
+fn get_loaded(loaded: &HashMap<usize, GrayDepth>, k: usize) -> Result<&GrayDepth> {
+    loaded
+        .get(&k)
+        .ok_or_else(|| Error::Input(format!("rigidity: frame {k} not loaded")))
+}
+
+/// The rigidity view of a loaded frame at `offset`.
+fn rigid_frame(g: &GrayDepth, offset: i64) -> RigidFrame<'_> {
+    RigidFrame {
+        gray: &g.0,
+        depth: &g.1,
+        offset,
     }
 }
 

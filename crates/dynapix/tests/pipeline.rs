@@ -421,6 +421,54 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
 }
 
 #[test]
+fn shared_rigidity_pairs_give_every_frame_the_map_it_gets_alone() {
+    // `motion.rigidity.shared_pairs` (the default): the chunked run computes each pair once
+    // for both of its frames; a frame computed alone must get the same map, and the maps
+    // stay close to those of the frames' own flows.
+    let config = Config::default();
+    assert!(config.motion.rigidity.shared_pairs);
+    let input = open(sequence(), &config);
+    let mut params = config.motion.rigidity.clone();
+    let shared = dynapix::cues::RigidityJob::new(&input, params.clone());
+    params.shared_pairs = false;
+    let own = dynapix::cues::RigidityJob::new(&input, params);
+    assert_ne!(
+        own.key(),
+        shared.key(),
+        "the option is part of the cache key"
+    );
+    let maps = std::sync::Mutex::new(std::collections::BTreeMap::new());
+    let stats = shared
+        .run(&NoProgress, "rigidity", |i, p| {
+            maps.lock().unwrap().insert(i, p);
+            Ok(())
+        })
+        .unwrap();
+    let maps = maps.into_inner().unwrap();
+    assert_eq!(maps.len(), FRAMES);
+    assert!(stats.pairs_used > 3 * FRAMES, "{stats:?}");
+    let (mut diff, mut n, mut same) = (0.0, 0usize, 0usize);
+    for i in [0, 1, 4, 40, 77, FRAMES - 2, FRAMES - 1] {
+        let alone = shared.frame(i).unwrap();
+        assert!(
+            alone.as_raw() == maps[&i].as_raw(),
+            "frame {i}: shared run against alone"
+        );
+        let mine = own.frame(i).unwrap();
+        same += usize::from(mine.as_raw() == alone.as_raw());
+        for (a, b) in mine.iter().zip(alone.iter()) {
+            diff += (a - b).abs() as f64;
+            n += 1;
+        }
+    }
+    // Frame 0 has only later neighbours, so the same flows; the others differ.
+    assert_eq!(same, 1, "only frame 0 is computed the same way");
+    let mean = diff / n as f64;
+    eprintln!("mean |ΔP| shared pairs against own flows: {mean:.4}");
+    assert!(mean < 0.03, "{mean}");
+}
+
+#[test]
 fn online_mode_keeps_a_real_gain() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = camera_only(tmp.path());
