@@ -1805,16 +1805,23 @@ mod tests {
         ));
     }
 
+    /// A fronto-parallel plane at 2 m seen by a camera shifted by 5 cm along x: the camera,
+    /// its rays, the depth of both frames, the constant flow `du` px and that flow.
+    fn translating_plane() -> (PinholeCamera, Arc<PixelRays>, FloatImage, f32, FlowField) {
+        let cam = small_camera();
+        let rays = camera_rays(&cam);
+        let depth = FloatImage::from_pixel(cam.width, cam.height, image::Luma([2.0]));
+        let du = (cam.fx * 0.05 / 2.0) as f32;
+        let flow = FlowField::constant(cam.width, cam.height, [du, 0.0]);
+        (cam, rays, depth, du, flow)
+    }
+
     #[test]
     fn a_translating_camera_over_a_plane_is_fitted_and_has_no_residual() {
         // Fronto-parallel plane at 2 m, camera j = camera i shifted: points move by
         // t = (0.05, 0, 0) in camera coordinates, i.e. a constant flow of fx·0.05/2 px.
-        let cam = small_camera();
-        let rays = camera_rays(&cam);
-        let (w, h) = (cam.width, cam.height);
-        let depth = FloatImage::from_pixel(w, h, image::Luma([2.0]));
-        let du = (cam.fx * 0.05 / 2.0) as f32;
-        let flow = FlowField::constant(w, h, [du, 0.0]);
+        let (cam, rays, depth, du, flow) = translating_plane();
+        let w = cam.width;
         let params = RigidityParams::default();
         let c = correspondences(&depth, &depth, &flow, &rays, &params).unwrap();
         let fit = fit_rigid_motion(&c, &cam, &params).unwrap();
@@ -1845,12 +1852,8 @@ mod tests {
         // The plane of the test above, seen from camera j: the flow j → i is the constant
         // −du, so the reversed flow is −du wherever a pixel of i lands, and the inverse of the
         // fit explains it.
-        let cam = small_camera();
-        let rays = camera_rays(&cam);
+        let (cam, rays, depth, du, flow) = translating_plane();
         let (w, h) = (cam.width, cam.height);
-        let depth = FloatImage::from_pixel(w, h, image::Luma([2.0]));
-        let du = (cam.fx * 0.05 / 2.0) as f32;
-        let flow = FlowField::constant(w, h, [du, 0.0]);
         let params = RigidityParams::default();
         let motion = se3([0.0; 3], [0.05, 0.0, 0.0]);
         let narrow = FloatImage::new(w - 1, h);
