@@ -31,6 +31,7 @@
 //! parallel parts (hypothesis scoring, rows of the dense residual, neighbours) are reduced in
 //! a fixed order.
 
+use std::borrow::Borrow;
 use std::sync::Arc;
 
 use dynapix_flow::{DisFlow, DisParams, FlowField, FlowProvider, Preset};
@@ -969,17 +970,17 @@ fn residual_row_body(
 /// baselines, the maximum (a slow mover shows at the longer baseline, a fast one at the
 /// shorter). Then P = clamp((r − r0)/(r1 − r0), 0, 1); pixels without any value get 0.
 /// Returns (P, combined residual with NaN where none).
-pub fn rigidity_from_residuals(
-    residuals: &[(u64, FloatImage)],
+pub fn rigidity_from_residuals<R: Borrow<FloatImage>>(
+    residuals: &[(u64, R)],
     params: &RigidityParams,
 ) -> Result<(FloatImage, FloatImage), MotionError> {
     params.validate()?;
     let Some((_, first)) = residuals.first() else {
         return Err(invalid("residuals", "need at least one neighbour"));
     };
-    let size = first.dimensions();
+    let size = first.borrow().dimensions();
     for (_, r) in residuals {
-        check_size("residual of a neighbour", size, r.dimensions())?;
+        check_size("residual of a neighbour", size, r.borrow().dimensions())?;
     }
     let mut baselines: Vec<u64> = residuals.iter().map(|(b, _)| *b).collect();
     baselines.sort_unstable();
@@ -988,7 +989,7 @@ pub fn rigidity_from_residuals(
     for b in baselines {
         let mut per = FloatImage::from_pixel(size.0, size.1, image::Luma([f32::NAN]));
         for (_, r) in residuals.iter().filter(|(rb, _)| *rb == b) {
-            for (c, &v) in per.iter_mut().zip(r.iter()) {
+            for (c, &v) in per.iter_mut().zip(r.borrow().iter()) {
                 // f32::min returns the other operand when one is NaN.
                 *c = c.min(v);
             }
@@ -1139,11 +1140,11 @@ pub fn pair_residuals(
     })
 }
 
-/// The rigidity maps of a frame of size `size` from its neighbours' fits and residuals, each
-/// with its frame offset (see [`rigidity_from_residuals`]); P is 0 everywhere without any
-/// residual.
-pub fn rigidity_from_pairs(
-    pairs: Vec<(i64, Result<RigidFit, RigidFitError>, Option<FloatImage>)>,
+/// The rigidity maps of a frame of size `size` from its neighbours' fits and residuals (owned
+/// or borrowed), each with its frame offset (see [`rigidity_from_residuals`]); P is 0
+/// everywhere without any residual.
+pub fn rigidity_from_pairs<R: Borrow<FloatImage>>(
+    pairs: Vec<(i64, Result<RigidFit, RigidFitError>, Option<R>)>,
     size: (u32, u32),
     params: &RigidityParams,
 ) -> Result<RigidityMaps, MotionError> {
@@ -1948,16 +1949,7 @@ mod tests {
         let mut shared = RocAccumulator::new(0.5);
         for (a, b) in [(0, 3), (0, 4), (1, 4)] {
             let mask = s.frames[b].2.as_raw();
-            let add = |roc: &mut RocAccumulator, p: &FloatImage| {
-                // Fast movers against the static scene; slow mover pixels left out.
-                let (p, pos): (Vec<f32>, Vec<bool>) = p
-                    .iter()
-                    .zip(mask)
-                    .filter(|(_, m)| **m != 128)
-                    .map(|(p, m)| (*p, *m == 255))
-                    .unzip();
-                roc.add(&p, &pos);
-            };
+            let add = |roc: &mut RocAccumulator, p: &FloatImage| add_fast_movers(roc, p, mask);
             let direct =
                 pair_residuals(&frame(b), &frame(a), &s.cam, &dis, &params, false).unwrap();
             assert!(direct.backward.is_none());
@@ -2003,7 +1995,7 @@ mod tests {
             assert!((got - want).abs() < 1e-6, "{got} {want}");
         }
         assert!(matches!(
-            rigidity_from_residuals(&[], &params),
+            rigidity_from_residuals::<FloatImage>(&[], &params),
             Err(MotionError::InvalidParam { .. })
         ));
         // Over baselines the larger residual wins: a slow mover shows at the long baseline.
@@ -2084,14 +2076,7 @@ mod tests {
                 assert!(fit.inlier_fraction() > 0.5, "{}", fit.inlier_fraction());
             }
             let mask = s.frames[k].2.as_raw();
-            let (p, pos): (Vec<f32>, Vec<bool>) = maps
-                .p
-                .iter()
-                .zip(mask)
-                .filter(|(_, m)| **m != 128)
-                .map(|(p, m)| (*p, *m == 255))
-                .unzip();
-            roc.add(&p, &pos);
+            add_fast_movers(&mut roc, &maps.p, mask);
             let fast: Vec<bool> = mask.iter().map(|&m| m == 255).collect();
             roc_all.add(maps.p.as_raw(), &fast);
             let slow: Vec<bool> = mask.iter().map(|&m| m == 128).collect();
@@ -2113,6 +2098,18 @@ mod tests {
         );
         assert!(roc.positives() > 5000, "walkers in view");
         assert!(auc > 0.85, "AUC {auc}");
+    }
+
+    /// P of the fast movers (mask 255) against the static scene (0) into `roc`; slow mover
+    /// pixels (128) left out.
+    fn add_fast_movers(roc: &mut RocAccumulator, p: &FloatImage, mask: &[u8]) {
+        let (p, pos): (Vec<f32>, Vec<bool>) = p
+            .iter()
+            .zip(mask)
+            .filter(|(_, m)| **m != 128)
+            .map(|(p, m)| (*p, *m == 255))
+            .unzip();
+        roc.add(&p, &pos);
     }
 
     fn mean_where(p: &FloatImage, mask: &[bool]) -> f64 {

@@ -181,10 +181,11 @@ impl<'a> RigidityJob<'a> {
             let pair = pairs
                 .get(&key)
                 .ok_or_else(|| Error::Input(format!("rigidity: pair {key:?} not computed")))?;
+            // The residual images are borrowed, not copied.
             per.push(if j > i {
-                (o, pair.fit.clone(), pair.forward.clone())
+                (o, pair.fit.clone(), pair.forward.as_ref())
             } else {
-                (o, pair.inverse_fit(), pair.backward.clone())
+                (o, pair.inverse_fit(), pair.backward.as_ref())
             });
         }
         let maps = dynapix_motion::rigidity_from_pairs(per, (cam.width, cam.height), &self.params)
