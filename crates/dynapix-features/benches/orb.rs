@@ -1,10 +1,10 @@
 //! ORB extraction time per 640×480 fr1_xyz frame (TUM settings), loading the embedded
 //! vocabulary, and the BoW transform of one frame's descriptors.
-//! Run: `cargo bench -p dynapix-slam --bench orb`.
+//! Run: `cargo bench -p dynapix-features --bench orb`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::vocab::Vocabulary;
+use dynapix_features::orb::{OrbExtractor, rgb_to_gray_orbslam};
+use dynapix_features::vocab::Vocabulary;
 use std::hint::black_box;
 use std::path::PathBuf;
 

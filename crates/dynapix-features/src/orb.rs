@@ -24,7 +24,7 @@ mod imgproc;
 mod octree;
 mod pattern;
 
-use crate::features::{Descriptor, KeyPoint};
+use crate::keypoint::{Descriptor, KeyPoint};
 use image::{GrayImage, RgbImage};
 use imgproc::Plane;
 use rayon::prelude::*;
@@ -664,34 +664,6 @@ fn rgb_to_gray_body(img: &RgbImage, [wr, wg, wb]: [u32; 3]) -> GrayImage {
 /// [`GrayConversion::OrbSlam2Swapped`] for ORB-SLAM2's swapped weights.
 pub fn rgb_to_gray_orbslam(img: &RgbImage) -> GrayImage {
     rgb_to_gray(img, GrayConversion::default())
-}
-
-/// ORB-SLAM2's extractor is the system's feature extractor.
-impl crate::system::FeatureExtractor for OrbExtractor {
-    fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        OrbExtractor::extract(self, image)
-    }
-    fn extract_where(
-        &mut self,
-        image: &GrayImage,
-        keep: Option<&KeepMask>,
-    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        OrbExtractor::extract_where(self, image, keep)
-    }
-    fn extract_where_cached(
-        &mut self,
-        image: &GrayImage,
-        keep: Option<&KeepMask>,
-        corners: &mut Option<std::sync::Arc<FastCorners>>,
-    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        OrbExtractor::extract_cached(self, image, keep, corners)
-    }
-    fn fast_corners(&self, image: &GrayImage) -> Option<std::sync::Arc<FastCorners>> {
-        Some(self.detect_corners(image))
-    }
-    fn pyramid(&self) -> crate::frame::ScalePyramid {
-        crate::frame::ScalePyramid::new(self.nlevels(), self.scale_factor())
-    }
 }
 
 #[cfg(test)]

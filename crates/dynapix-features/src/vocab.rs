@@ -24,7 +24,7 @@ mod train;
 
 pub use train::TrainParams;
 
-use crate::features::{Descriptor, hamming};
+use crate::keypoint::{Descriptor, hamming};
 
 /// Index of a leaf of the vocabulary (a visual word), counting leaves in node order.
 pub type WordId = u32;

@@ -5,14 +5,14 @@
 
 use std::collections::{HashMap, HashSet};
 
-use crate::dynapix::{BirthSource, may_birth_in_keyframe};
+use crate::weighting::{BirthSource, may_birth_in_keyframe};
 use dynapix_optim::{BaEdge, BaParams, BaProblem, Observation};
 use nalgebra::{Matrix4, Vector3};
 
+use crate::camera::stereo_camera;
 use crate::frame::{RgbdCamera, bow_vectors, transform};
 use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams};
-use crate::tracking::stereo_camera;
 use crate::vocab::Vocabulary;
 
 /// Local-mapping parameters (ORB-SLAM2 RGB-D defaults).
@@ -532,7 +532,7 @@ impl LocalMapper {
             points: pts,
             edges,
         };
-        let params = crate::dynapix::ba_params(&self.params.ba, &map.params.dynapix);
+        let params = crate::weighting::ba_params(&self.params.ba, &map.params.dynapix);
         let result = dynapix_optim::bundle_adjust(&problem, &params);
         let mut outliers = 0;
         for (e, &(m, o)) in edge_ref.iter().enumerate() {

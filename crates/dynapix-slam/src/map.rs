@@ -4,309 +4,20 @@
 //! `&Map`/`&mut Map` for the duration of a step and keep only ids across calls. A stale id
 //! (entity culled or replaced) is detected by its generation.
 
+mod arena;
+mod entities;
+
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use dynapix_geometry::Se3;
 use nalgebra::Vector3;
 
-use crate::features::{Descriptor, KeyPoint, hamming};
-use crate::frame::{FeatureGrid, Frame, ScalePyramid};
+use crate::features::{Descriptor, ScalePyramid, hamming};
+use crate::weighting::params::DynaPixParams;
+use arena::Arena;
 
-/// Id of a keyframe in the [`Map`] (index + generation; a culled keyframe's id goes stale).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct KeyFrameId {
-    index: u32,
-    generation: u32,
-}
-
-/// Id of a map point in the [`Map`] (index + generation; a culled point's id goes stale).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct MapPointId {
-    index: u32,
-    generation: u32,
-}
-
-impl KeyFrameId {
-    /// Id of the `index`-th keyframe of a map rebuilt from dense storage (generation 0).
-    pub(crate) fn dense(index: u32) -> Self {
-        Self {
-            index,
-            generation: 0,
-        }
-    }
-
-    /// The arena slot of the keyframe (shared with ids of culled keyframes of that slot).
-    pub(crate) fn slot(self) -> usize {
-        self.index as usize
-    }
-}
-
-impl MapPointId {
-    /// Id of the `index`-th point of a map rebuilt from dense storage (generation 0).
-    pub(crate) fn dense(index: u32) -> Self {
-        Self {
-            index,
-            generation: 0,
-        }
-    }
-}
-
-struct Slot<T> {
-    generation: u32,
-    value: Option<T>,
-}
-
-/// A generational arena: removal bumps the slot generation, freed slots are reused in LIFO
-/// order (deterministic).
-struct Arena<T> {
-    slots: Vec<Slot<T>>,
-    free: Vec<u32>,
-    len: usize,
-}
-
-impl<T> Arena<T> {
-    fn new() -> Self {
-        Self {
-            slots: Vec::new(),
-            free: Vec::new(),
-            len: 0,
-        }
-    }
-
-    fn insert(&mut self, value: T) -> (u32, u32) {
-        self.len += 1;
-        if let Some(i) = self.free.pop()
-            && let Some(slot) = self.slots.get_mut(i as usize)
-        {
-            slot.value = Some(value);
-            return (i, slot.generation);
-        }
-        self.slots.push(Slot {
-            generation: 0,
-            value: Some(value),
-        });
-        ((self.slots.len() - 1) as u32, 0)
-    }
-
-    fn get(&self, index: u32, generation: u32) -> Option<&T> {
-        self.slots
-            .get(index as usize)
-            .filter(|s| s.generation == generation)
-            .and_then(|s| s.value.as_ref())
-    }
-
-    fn get_mut(&mut self, index: u32, generation: u32) -> Option<&mut T> {
-        self.slots
-            .get_mut(index as usize)
-            .filter(|s| s.generation == generation)
-            .and_then(|s| s.value.as_mut())
-    }
-
-    fn remove(&mut self, index: u32, generation: u32) -> Option<T> {
-        let slot = self.slots.get_mut(index as usize)?;
-        if slot.generation != generation {
-            return None;
-        }
-        let v = slot.value.take()?;
-        slot.generation = slot.generation.wrapping_add(1);
-        self.free.push(index);
-        self.len -= 1;
-        Some(v)
-    }
-
-    /// An arena holding `values` at indices 0.. with generation 0 and no free slot.
-    fn from_values(values: Vec<T>) -> Self {
-        let len = values.len();
-        Self {
-            slots: values
-                .into_iter()
-                .map(|v| Slot {
-                    generation: 0,
-                    value: Some(v),
-                })
-                .collect(),
-            free: Vec::new(),
-            len,
-        }
-    }
-
-    fn iter(&self) -> impl Iterator<Item = (u32, u32, &T)> {
-        self.slots
-            .iter()
-            .enumerate()
-            .filter_map(|(i, s)| s.value.as_ref().map(|v| (i as u32, s.generation, v)))
-    }
-}
-
-/// A keyframe: a frame kept in the map, with its covisibility links and spanning-tree links.
-#[derive(Clone, Debug)]
-pub struct KeyFrame {
-    /// Keyframe sequence number (0 for the first keyframe of the map), ORB-SLAM2 `mnId`.
-    pub seq: u64,
-    /// Id of the frame it was created from.
-    pub frame_id: u64,
-    /// Timestamp in seconds.
-    pub timestamp: f64,
-    /// Pose `T_cw` (world → camera).
-    pub pose: Se3,
-    /// Keypoints at their image (distorted) position.
-    pub keys: Vec<KeyPoint>,
-    /// Undistorted keypoints.
-    pub keys_un: Vec<KeyPoint>,
-    /// Descriptors.
-    pub descriptors: Vec<Descriptor>,
-    /// Depth per keypoint in metres, negative when missing.
-    pub depth: Vec<f32>,
-    /// Virtual right coordinate per keypoint, negative when missing.
-    pub u_right: Vec<f32>,
-    /// DynaPix weight w = 1 − P per keypoint.
-    pub weights: Vec<f32>,
-    /// Keypoint on a semantically dynamic class (DynaPix+, gates map-point birth).
-    pub dynamic_class: Vec<bool>,
-    /// Map point matched to each keypoint.
-    pub map_points: Vec<Option<MapPointId>>,
-    /// Feature grid over the undistorted keypoints.
-    pub grid: FeatureGrid,
-    /// Bag-of-words words of the keypoints, `(word, weight)`, sorted by word.
-    pub bow: Vec<(u32, f64)>,
-    /// Feature vector: node id → keypoint indices, sorted by node.
-    pub feat: Vec<(u32, Vec<u32>)>,
-    /// Covisibility weights to other keyframes (shared map points), only edges kept.
-    pub connections: BTreeMap<KeyFrameId, usize>,
-    /// Covisible keyframes sorted by decreasing weight (ties by id).
-    pub ordered: Vec<(KeyFrameId, usize)>,
-    /// Spanning-tree parent (None for the root).
-    pub parent: Option<KeyFrameId>,
-    /// Spanning-tree children.
-    pub children: BTreeSet<KeyFrameId>,
-    /// Loop edges (filled by loop closing, a later stage).
-    pub loop_edges: BTreeSet<KeyFrameId>,
-}
-
-impl KeyFrame {
-    /// Builds a keyframe from a frame with a pose. `seq` is the keyframe sequence number.
-    pub fn from_frame(frame: &Frame, seq: u64, pose: Se3) -> Self {
-        Self {
-            seq,
-            frame_id: frame.id,
-            timestamp: frame.timestamp,
-            pose,
-            keys: frame.keys.clone(),
-            keys_un: frame.keys_un.clone(),
-            descriptors: frame.descriptors.clone(),
-            depth: frame.depth.clone(),
-            u_right: frame.u_right.clone(),
-            weights: frame.weights.clone(),
-            dynamic_class: frame.dynamic_class.clone(),
-            map_points: frame.map_points.clone(),
-            grid: frame.grid.clone(),
-            bow: frame.bow.clone(),
-            feat: frame.feat.clone(),
-            connections: BTreeMap::new(),
-            ordered: Vec::new(),
-            parent: None,
-            children: BTreeSet::new(),
-            loop_edges: BTreeSet::new(),
-        }
-    }
-
-    /// Camera centre in world coordinates.
-    pub fn center(&self) -> Vector3<f64> {
-        self.pose.inverse().translation.vector
-    }
-
-    /// Up to `n` best covisible keyframes.
-    pub fn best_covisibles(&self, n: usize) -> Vec<KeyFrameId> {
-        self.ordered.iter().take(n).map(|&(k, _)| k).collect()
-    }
-
-    /// Covisibility weight to `other` (0 when not connected).
-    pub fn weight(&self, other: KeyFrameId) -> usize {
-        self.connections.get(&other).copied().unwrap_or(0)
-    }
-
-    /// Back-projects keypoint `i` with its depth into world coordinates.
-    pub fn unproject(&self, i: usize, cam: &crate::frame::RgbdCamera) -> Option<Vector3<f64>> {
-        let z = *self.depth.get(i)? as f64;
-        if z <= 0.0 {
-            return None;
-        }
-        let kp = self.keys_un.get(i)?;
-        let xc = Vector3::new(
-            (kp.x as f64 - cam.pinhole.cx) * z / cam.pinhole.fx,
-            (kp.y as f64 - cam.pinhole.cy) * z / cam.pinhole.fy,
-            z,
-        );
-        Some(crate::frame::transform(&self.pose.inverse(), &xc))
-    }
-}
-
-/// A 3-D landmark with its observations and the statistics tracking and culling need.
-#[derive(Clone, Debug)]
-pub struct MapPoint {
-    /// Creation order (deterministic tie-breaks).
-    pub seq: u64,
-    /// Position in world coordinates.
-    pub position: Vector3<f64>,
-    /// Mean viewing direction (unit).
-    pub normal: Vector3<f64>,
-    /// Minimum distance of scale invariance.
-    pub min_distance: f64,
-    /// Maximum distance of scale invariance.
-    pub max_distance: f64,
-    /// Representative descriptor (minimum median distance to the others).
-    pub descriptor: Descriptor,
-    /// Observing keyframes and the keypoint index in each.
-    pub observations: BTreeMap<KeyFrameId, usize>,
-    /// Observation count, depth-valid observations count 2 (ORB-SLAM2 `nObs`).
-    pub num_obs: usize,
-    /// Reference keyframe (first observer still present).
-    pub reference: KeyFrameId,
-    /// Keyframe sequence number of its creation keyframe (`mnFirstKFid`).
-    pub first_kf_seq: u64,
-    /// Times predicted visible in a tracked frame.
-    pub visible: u32,
-    /// Times matched in a tracked frame.
-    pub found: u32,
-    /// 1 − the point's DynaPix motion probability, initialised from the creating keypoint
-    /// and updated from matched keypoints by [`crate::dynapix::update_matched_points`].
-    pub weight: f32,
-    /// The observations `descriptor` was last chosen from, in order, and the choice: when
-    /// both still hold, [`Map::compute_distinctive_descriptor`] would choose the same again.
-    pub(crate) descriptor_basis: (Vec<(KeyFrameId, usize)>, Descriptor),
-}
-
-impl MapPoint {
-    /// Found / visible ratio.
-    pub fn found_ratio(&self) -> f32 {
-        if self.visible == 0 {
-            0.0
-        } else {
-            self.found as f32 / self.visible as f32
-        }
-    }
-
-    /// Predicted pyramid level at distance `dist` (ORB-SLAM2 `PredictScale`).
-    pub fn predict_scale(&self, dist: f64, pyr: &ScalePyramid) -> usize {
-        let ratio = self.max_distance / dist.max(1e-12);
-        let level = (ratio.ln() / (pyr.scale_factor as f64).ln()).ceil();
-        if level.is_nan() || level < 0.0 {
-            0
-        } else {
-            (level as usize).min(pyr.levels.saturating_sub(1))
-        }
-    }
-}
-
-/// Link of a culled keyframe to its spanning-tree parent, kept so frame poses stored relative
-/// to it can be recomposed.
-#[derive(Clone, Copy, Debug)]
-pub struct CulledLink {
-    /// Parent at culling time.
-    pub parent: KeyFrameId,
-    /// `T_cp`: pose of the culled keyframe relative to its parent.
-    pub t_cp: Se3,
-}
+pub use crate::ids::{KeyFrameId, MapPointId};
+pub use entities::{CulledLink, KeyFrame, MapPoint};
 
 /// Parameters of the map bookkeeping.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -315,14 +26,14 @@ pub struct MapParams {
     /// Minimum shared points for a covisibility edge (15).
     pub covisibility_threshold: usize,
     /// DynaPix rules (birth gate, per-point probability, deletion).
-    pub dynapix: crate::dynapix::DynaPixParams,
+    pub dynapix: DynaPixParams,
 }
 
 impl Default for MapParams {
     fn default() -> Self {
         Self {
             covisibility_threshold: 15,
-            dynapix: crate::dynapix::DynaPixParams::default(),
+            dynapix: DynaPixParams::default(),
         }
     }
 }
@@ -905,7 +616,8 @@ impl Map {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::{FeatureGrid, ScalePyramid};
+    use crate::features::KeyPoint;
+    use crate::frame::FeatureGrid;
 
     fn kf_with(n: usize) -> KeyFrame {
         let kp = KeyPoint {

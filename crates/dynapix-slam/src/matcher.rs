@@ -601,11 +601,11 @@ pub fn fuse(
                 }
             }
             None => {
-                if !crate::dynapix::may_birth_in_keyframe(
+                if !crate::weighting::may_birth_in_keyframe(
                     map,
                     kf_id,
                     best.1,
-                    crate::dynapix::BirthSource::Fusion,
+                    crate::weighting::BirthSource::Fusion,
                 ) {
                     continue;
                 }

@@ -9,130 +9,18 @@ use std::time::Instant;
 use dynapix_geometry::Se3;
 use image::GrayImage;
 
-use crate::features::{Descriptor, KeyPoint};
 use dynapix_io::StaticWeights;
 
-use crate::frame::{DepthImage, Frame, ImageBounds, RgbdCamera, ScalePyramid};
+use crate::camera::{ImageBounds, RgbdCamera};
+use crate::feature_stage::{FeatureStage, Features};
+use crate::features::FeatureExtractor;
+use crate::frame::{DepthImage, Frame};
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::loop_closing::{LoopCloser, LoopClosingParams, LoopEvent};
 use crate::map::{KeyFrameId, Map, MapParams, MapPointId};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
 use crate::vocab::Vocabulary;
 use dynapix_optim::Observation;
-
-/// Produces keypoints (level-0 image coordinates) and descriptors from a grey image.
-pub trait FeatureExtractor {
-    /// Extracts features.
-    fn extract(&mut self, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>);
-    /// Extracts features only where `keep` allows, spending the whole budget there. The
-    /// default ignores the mask.
-    fn extract_where(
-        &mut self,
-        image: &GrayImage,
-        keep: Option<&crate::orb::KeepMask>,
-    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        let _ = keep;
-        self.extract(image)
-    }
-    /// [`FeatureExtractor::extract_where`], reusing the frame's FAST corners from an earlier
-    /// extraction of the same image where the extractor can (see
-    /// [`crate::orb::OrbExtractor::extract_cached`]); the result must be the same as without.
-    /// The default ignores the cache.
-    fn extract_where_cached(
-        &mut self,
-        image: &GrayImage,
-        keep: Option<&crate::orb::KeepMask>,
-        corners: &mut Option<std::sync::Arc<crate::orb::FastCorners>>,
-    ) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        let _ = corners;
-        self.extract_where(image, keep)
-    }
-    /// The FAST corners of `image` on their own, for a later
-    /// [`FeatureExtractor::extract_where_cached`] of the same image, where the extractor has
-    /// such a cache ([`crate::orb::OrbExtractor::detect_corners`]). The default has none.
-    fn fast_corners(&self, image: &GrayImage) -> Option<std::sync::Arc<crate::orb::FastCorners>> {
-        let _ = image;
-        None
-    }
-    /// The pyramid the keypoint octaves refer to.
-    fn pyramid(&self) -> ScalePyramid;
-}
-
-/// Keypoints and descriptors of one frame, from [`FeatureStage::extract`].
-#[derive(Clone, Debug)]
-pub struct Features {
-    /// Keypoints, level-0 image coordinates.
-    pub keys: Vec<KeyPoint>,
-    /// Their descriptors.
-    pub descriptors: Vec<Descriptor>,
-    /// Wall-clock seconds the extraction took (measurement only).
-    pub seconds: f64,
-}
-
-/// The feature extraction of a [`System`] on its own. It depends only on the frame (its grey
-/// image and, with [`SystemParams::static_features_min_weight`], its weights), never on the
-/// map, so a copy ([`System::feature_stage`]) can run ahead of tracking on another thread and
-/// gives exactly the features [`System::process`] would extract (see
-/// [`System::process_features`]).
-#[derive(Clone, Debug)]
-pub struct FeatureStage<E> {
-    extractor: E,
-    static_features_min_weight: Option<f32>,
-}
-
-impl<E: FeatureExtractor> FeatureStage<E> {
-    /// Extracts the features of a frame with grey image `gray` and static weights `weights`.
-    pub fn extract(&mut self, gray: &GrayImage, weights: Option<&StaticWeights>) -> Features {
-        self.extract_cached(gray, weights, &mut None)
-    }
-
-    /// [`FeatureStage::extract`] reusing `corners`, the FAST corners of an earlier extraction
-    /// of the same grey image (another pass over the same frame), or storing them there; the
-    /// features are the same either way.
-    pub fn extract_cached(
-        &mut self,
-        gray: &GrayImage,
-        weights: Option<&StaticWeights>,
-        corners: &mut Option<std::sync::Arc<crate::orb::FastCorners>>,
-    ) -> Features {
-        let t0 = Instant::now();
-        let _stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
-        let keep = match (self.static_features_min_weight, weights) {
-            (Some(th), Some(w)) if w.dimensions() == gray.dimensions() => {
-                crate::orb::KeepMask::new(
-                    w.as_image().width(),
-                    w.as_image().height(),
-                    w.as_image()
-                        .as_raw()
-                        .iter()
-                        .map(|&v| v.is_nan() || v >= th)
-                        .collect(),
-                )
-            }
-            _ => None,
-        };
-        let (keys, descriptors) = self
-            .extractor
-            .extract_where_cached(gray, keep.as_ref(), corners);
-        Features {
-            keys,
-            descriptors,
-            seconds: t0.elapsed().as_secs_f64(),
-        }
-    }
-
-    /// The FAST corners of `gray` for a later [`FeatureStage::extract_cached`] of the same
-    /// image, detected on their own: they depend on the image only, not on the weights, so
-    /// they can be found while the weights are computed. `None` when the extractor keeps no
-    /// corners.
-    pub fn fast_corners(
-        &self,
-        gray: &GrayImage,
-    ) -> Option<std::sync::Arc<crate::orb::FastCorners>> {
-        let _stage = tracing::info_span!(target: "dynapix::stage", "orb extraction").entered();
-        self.extractor.fast_corners(gray)
-    }
-}
 
 /// Parameters of all stages.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -160,6 +48,15 @@ pub struct SystemParams {
     /// was tracked with, leaving out the points that were culled since (e.g. removed because
     /// they started moving). Off in ORB-SLAM2 mode.
     pub final_pose_refinement: bool,
+}
+
+impl SystemParams {
+    /// These parameters with the DynaPix behaviour `p` (tracking, local and global BA and the
+    /// map rules all follow [`crate::map::MapParams::dynapix`]).
+    pub fn with_dynapix(mut self, p: crate::weighting::params::DynaPixParams) -> Self {
+        self.map.dynapix = p;
+        self
+    }
 }
 
 /// One input frame.
@@ -375,7 +272,10 @@ impl<E: FeatureExtractor> System<E> {
             localization: false,
             final_global_ba: params.final_global_ba,
             final_pose_refinement: params.final_pose_refinement,
-            refine_params: crate::dynapix::pose_params(&params.tracking.pose, &params.map.dynapix),
+            refine_params: crate::weighting::pose_params(
+                &params.tracking.pose,
+                &params.map.dynapix,
+            ),
             pending: None,
         }
     }
@@ -668,7 +568,7 @@ impl<E: FeatureExtractor> System<E> {
             self.bounds,
         );
         if let Some(m) = input.masks {
-            crate::dynapix::apply_class_mask(&mut frame, m);
+            crate::weighting::apply_class_mask(&mut frame, m);
         }
         let num_keypoints = frame.len();
         let out = if self.localization {
@@ -763,7 +663,7 @@ impl<E: FeatureExtractor> System<E> {
     /// keeps its pose. Returns the number of frames whose pose was replaced.
     pub fn refine_frame_poses(&mut self) -> usize {
         self.map_pending();
-        let camera = crate::tracking::stereo_camera(&self.cam);
+        let camera = crate::camera::stereo_camera(&self.cam);
         let mut n = 0;
         for r in self.records.iter_mut() {
             let matches = std::mem::take(&mut r.matches);

@@ -9,13 +9,15 @@ mod relocalization;
 use std::collections::{BTreeMap, HashSet};
 
 use dynapix_geometry::Se3;
-use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem, StereoCamera};
+use dynapix_optim::{Observation, PoseOnlyParams, PoseOnlyProblem};
 
-use crate::dynapix::{BirthSource, may_birth_in_frame};
-use crate::frame::{Frame, RgbdCamera, normalized, transform};
+use crate::camera::{RgbdCamera, stereo_camera};
+use crate::frame::Frame;
 use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
 use crate::matcher::{self, MatcherParams, ProjectionCandidate};
+use crate::pose::{normalized, transform};
 use crate::vocab::Vocabulary;
+use crate::weighting::{BirthSource, may_birth_in_frame};
 
 pub use relocalization::RelocParams;
 
@@ -476,7 +478,7 @@ impl Tracker {
             points,
             observations: obs,
         };
-        let params = crate::dynapix::pose_params(&self.params.pose, &map.params.dynapix);
+        let params = crate::weighting::pose_params(&self.params.pose, &map.params.dynapix);
         let result = dynapix_optim::optimize_pose(&problem, &params);
         frame.pose = Some(normalized(&result.pose));
         for (k, &i) in idx.iter().enumerate() {
@@ -728,7 +730,7 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
-        let upd = crate::dynapix::update_matched_points(map, frame);
+        let upd = crate::weighting::update_matched_points(map, frame);
         if upd.deleted > 0 {
             tracing::debug!(
                 frame = frame.id,
@@ -864,17 +866,6 @@ impl Tracker {
             self.last_reloc_frame = frame.id;
         }
         ok
-    }
-}
-
-/// The optimiser's camera from the RGB-D camera.
-pub fn stereo_camera(cam: &RgbdCamera) -> StereoCamera {
-    StereoCamera {
-        fx: cam.pinhole.fx,
-        fy: cam.pinhole.fy,
-        cx: cam.pinhole.cx,
-        cy: cam.pinhole.cy,
-        bf: cam.bf,
     }
 }
 

@@ -1,7 +1,7 @@
 //! Tests of the ORB extractor on real TUM frames and generated images.
 
 use super::*;
-use crate::features::hamming;
+use crate::keypoint::hamming;
 use image::{GrayImage, Luma};
 use std::path::PathBuf;
 

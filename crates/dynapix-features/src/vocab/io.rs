@@ -18,7 +18,7 @@
 //! Leaves are the nodes without children, word ids count them in node order (as DBoW2).
 
 use super::{VocabError, Vocabulary};
-use crate::features::Descriptor;
+use crate::keypoint::Descriptor;
 use std::io::{BufRead, Write};
 use std::path::Path;
 

@@ -6,7 +6,7 @@
 //! path in the tree, so results do not depend on rayon's scheduling.
 
 use super::{VocabError, Vocabulary};
-use crate::features::{Descriptor, hamming};
+use crate::keypoint::{Descriptor, hamming};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;

@@ -22,11 +22,11 @@ use dynapix_geometry::Se3;
 use dynapix_optim::BaParams;
 use nalgebra::Vector3;
 
-use crate::dynapix::{BirthSource, may_birth_in_keyframe};
 use crate::features::hamming;
 use crate::frame::{RgbdCamera, normalized, transform};
 use crate::map::{KeyFrameId, Map, MapPointId};
 use crate::matcher::MatcherParams;
+use crate::weighting::{BirthSource, may_birth_in_keyframe};
 
 use super::LoopMatch;
 

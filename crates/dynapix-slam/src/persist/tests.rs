@@ -11,10 +11,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
+use crate::features::FeatureExtractor;
 use crate::features::{Descriptor, KeyPoint};
 use crate::frame::{DepthImage, transform};
 use crate::map::KeyFrameId;
-use crate::system::{FeatureExtractor, FrameInput, FrameResult, System, SystemParams};
+use crate::system::{FrameInput, FrameResult, System, SystemParams};
 use crate::tracking::TrackingState;
 
 const W: u32 = 640;

@@ -14,10 +14,10 @@ use std::collections::HashMap;
 use dynapix_geometry::Se3;
 use dynapix_optim::{BaParams, BaProblem, bundle_adjust};
 
+use crate::camera::stereo_camera;
 use crate::frame::{RgbdCamera, normalized, transform};
 use crate::local_mapping::weighted_ba_edges;
 use crate::map::{KeyFrameId, Map, MapPointId};
-use crate::tracking::stereo_camera;
 
 use super::CorrectionParams;
 
@@ -37,12 +37,12 @@ pub struct Output {
 /// The BA parameters of a global BA: `params.ba` thresholds with the weighting of the DynaPix
 /// behaviour `dynapix` (the same per-edge weights as local BA, spec §2.7), one stage of
 /// `global_ba_iterations` iterations, kernel per `global_ba_robust`.
-pub fn ba_params(params: &CorrectionParams, dynapix: &crate::dynapix::DynaPixParams) -> BaParams {
+pub fn ba_params(params: &CorrectionParams, dynapix: &crate::weighting::DynaPixParams) -> BaParams {
     BaParams {
         iterations_robust: params.global_ba_iterations,
         iterations_refine: 0,
         robust: params.global_ba_robust,
-        ..crate::dynapix::ba_params(&params.ba, dynapix)
+        ..crate::weighting::ba_params(&params.ba, dynapix)
     }
 }
 

@@ -10,12 +10,13 @@ use image::GrayImage;
 use rayon::prelude::*;
 
 use super::{DetectionDiagnostics, DetectionOutcome, DetectionParams, LoopDetector};
+use crate::features::FeatureExtractor;
 use crate::features::{Descriptor, KeyPoint};
 use crate::frame::{DepthImage, RgbdCamera, ScalePyramid};
 use crate::loop_closing::LoopMatch;
 use crate::map::{KeyFrame, Map, MapParams};
 use crate::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
-use crate::system::{FeatureExtractor, FrameInput, System, SystemParams};
+use crate::system::{FrameInput, System, SystemParams};
 use crate::vocab::Vocabulary;
 
 struct Orb(OrbExtractor);
