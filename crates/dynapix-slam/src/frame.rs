@@ -8,13 +8,11 @@ use dynapix_geometry::Se3;
 use image::{ImageBuffer, Luma};
 use nalgebra::Vector3;
 
+use crate::camera::{ImageBounds, RgbdCamera};
 use crate::features::{Descriptor, KeyPoint};
 use crate::ids::{KeyFrameId, MapPointId};
+use crate::pose::transform;
 use crate::vocab::Vocabulary;
-
-pub use crate::camera::{ImageBounds, RgbdCamera};
-pub use crate::features::ScalePyramid;
-pub use crate::pose::{normalized, transform};
 
 /// Depth image in metres (0 = no measurement).
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;

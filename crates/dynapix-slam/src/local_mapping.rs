@@ -9,10 +9,13 @@ use crate::weighting::{BirthSource, may_birth_in_keyframe};
 use dynapix_optim::{BaEdge, BaParams, BaProblem, Observation};
 use nalgebra::{Matrix4, Vector3};
 
+use crate::camera::RgbdCamera;
 use crate::camera::stereo_camera;
-use crate::frame::{RgbdCamera, bow_vectors, transform};
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::frame::bow_vectors;
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::Map;
 use crate::matcher::{self, MatcherParams};
+use crate::pose::transform;
 use crate::vocab::Vocabulary;
 
 /// Local-mapping parameters (ORB-SLAM2 RGB-D defaults).
@@ -543,7 +546,7 @@ impl LocalMapper {
         }
         for (i, &id) in kf_ids.iter().enumerate().take(n_local) {
             if let (Some(k), Some(p)) = (map.keyframe_mut(id), result.poses.get(i)) {
-                k.pose = crate::frame::normalized(p);
+                k.pose = crate::pose::normalized(p);
             }
         }
         for (pi, &m) in points.iter().enumerate() {

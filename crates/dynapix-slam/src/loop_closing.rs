@@ -7,7 +7,7 @@
 
 use dynapix_geometry::Se3;
 
-use crate::map::{KeyFrameId, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
 
 pub mod correct;
 pub mod detect;
@@ -31,7 +31,7 @@ pub struct LoopMatch {
     pub loop_points: Vec<MapPointId>,
 }
 
-use crate::frame::RgbdCamera;
+use crate::camera::RgbdCamera;
 use crate::map::Map;
 use crate::vocab::Vocabulary;
 use correct::{CorrectionParams, CorrectionStats, correct_loop};

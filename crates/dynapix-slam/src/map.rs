@@ -16,7 +16,7 @@ use crate::features::{Descriptor, ScalePyramid, hamming};
 use crate::weighting::params::DynaPixParams;
 use arena::Arena;
 
-pub use crate::ids::{KeyFrameId, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
 pub use entities::{CulledLink, KeyFrame, MapPoint};
 
 /// Parameters of the map bookkeeping.

@@ -8,9 +8,13 @@ use std::collections::HashSet;
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::camera::RgbdCamera;
+use crate::features::ScalePyramid;
 use crate::features::{Descriptor, KeyPoint, hamming};
-use crate::frame::{Frame, RgbdCamera, ScalePyramid, transform};
-use crate::map::{KeyFrame, KeyFrameId, Map, MapPointId};
+use crate::frame::Frame;
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::{KeyFrame, Map};
+use crate::pose::transform;
 
 /// Matching thresholds (ORB-SLAM2 constants).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

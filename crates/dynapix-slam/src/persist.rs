@@ -42,7 +42,9 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{RgbdCamera, ScalePyramid};
+use crate::camera::RgbdCamera;
+
+use crate::features::ScalePyramid;
 use crate::map::{Map, MapParams};
 use crate::vocab::Vocabulary;
 

@@ -15,9 +15,10 @@ use crate::camera::{ImageBounds, RgbdCamera};
 use crate::feature_stage::{FeatureStage, Features};
 use crate::features::FeatureExtractor;
 use crate::frame::{DepthImage, Frame};
+use crate::ids::{KeyFrameId, MapPointId};
 use crate::local_mapping::{LocalMapper, LocalMappingParams, MappingStats};
 use crate::loop_closing::{LoopCloser, LoopClosingParams, LoopEvent};
-use crate::map::{KeyFrameId, Map, MapParams, MapPointId};
+use crate::map::{Map, MapParams};
 use crate::tracking::{Tracker, TrackingParams, TrackingState};
 use crate::vocab::Vocabulary;
 use dynapix_optim::Observation;
@@ -692,7 +693,7 @@ impl<E: FeatureExtractor> System<E> {
             if res.num_inliers < MIN_REFINE_MATCHES {
                 continue;
             }
-            let tcw = crate::frame::normalized(&res.pose);
+            let tcw = crate::pose::normalized(&res.pose);
             r.relative = Some((k, tcw * kp.inverse()));
             n += 1;
         }

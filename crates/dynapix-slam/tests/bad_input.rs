@@ -6,8 +6,10 @@ use std::path::{Path, PathBuf};
 
 use dynapix_geometry::PinholeCamera;
 use dynapix_slam::FeatureExtractor;
+use dynapix_slam::camera::RgbdCamera;
+use dynapix_slam::features::ScalePyramid;
 use dynapix_slam::features::{Descriptor, KeyPoint};
-use dynapix_slam::frame::{DepthImage, RgbdCamera, ScalePyramid};
+use dynapix_slam::frame::DepthImage;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;

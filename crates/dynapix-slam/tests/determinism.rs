@@ -6,7 +6,9 @@
 
 use std::sync::mpsc::sync_channel;
 
-use dynapix_slam::frame::{DepthImage, RgbdCamera};
+use dynapix_slam::frame::DepthImage;
+
+use dynapix_slam::camera::RgbdCamera;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, System, SystemParams};
 use dynapix_slam::vocab::Vocabulary;

@@ -19,8 +19,8 @@ use dynapix_io::Pairing;
 use dynapix_motion::{
     Backgrounds, MotionParams, ReconstructParams, RigidityParams, StaticDepthParams, Variant,
 };
-use dynapix_slam::dynapix::DynaPixParams;
 use dynapix_slam::system::SystemParams;
+use dynapix_slam::weighting::DynaPixParams;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -670,7 +670,7 @@ impl Config {
                 )));
             }
         }
-        if let dynapix_slam::dynapix::ProbUpdate::Ema { alpha } = d.update
+        if let dynapix_slam::weighting::ProbUpdate::Ema { alpha } = d.update
             && !(alpha.is_finite() && alpha > 0.0 && alpha <= 1.0)
         {
             return Err(Error::config(format!(
@@ -816,7 +816,7 @@ fn merge(base: &mut Value, over: Value) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynapix_slam::dynapix::{ProbUpdate, Weighting};
+    use dynapix_slam::weighting::{ProbUpdate, Weighting};
 
     #[test]
     fn default_is_the_paper_and_reference_is_consistent() {
@@ -980,10 +980,10 @@ mod tests {
             .to_string();
         assert!(e.contains("offsets"), "{e}");
         let mut c = Config::default();
-        c.slam.params.map.dynapix.update = dynapix_slam::dynapix::ProbUpdate::Ema { alpha: 2.0 };
+        c.slam.params.map.dynapix.update = dynapix_slam::weighting::ProbUpdate::Ema { alpha: 2.0 };
         assert!(c.validate().unwrap_err().to_string().contains("EMA weight"));
         c.slam.params.map.dynapix.update =
-            dynapix_slam::dynapix::ProbUpdate::Ema { alpha: f32::NAN };
+            dynapix_slam::weighting::ProbUpdate::Ema { alpha: f32::NAN };
         assert!(c.validate().is_err());
         let c = Config::from_yaml_str("sequence: {skip_bad_frames: true}\n").unwrap();
         assert!(c.sequence.skip_bad_frames && !Config::default().sequence.skip_bad_frames);

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use dynapix_io::settings::SEQUENCE_SETTINGS_FILE;
 use dynapix_io::{Sequence, SequenceOptions, Settings};
-use dynapix_slam::frame::RgbdCamera;
+use dynapix_slam::RgbdCamera;
 use dynapix_slam::orb::{FastCorners, OrbParams};
 use image::RgbImage;
 use serde::Serialize;

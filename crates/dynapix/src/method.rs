@@ -4,7 +4,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use dynapix_slam::dynapix::Weighting;
+use dynapix_slam::weighting::Weighting;
 use serde::{Deserialize, Serialize};
 
 /// A method of the paper's tables: the baseline, DynaPix, DynaPix+ and the ablations. All run

@@ -559,7 +559,7 @@ impl<'a> OfflineRunner<'a> {
                 "gamma_add": d.gamma_add,
                 "gamma_del": d.gamma_del,
                 "update": format!("{:?}", d.update),
-                "ba_weight_clamp": dynapix_slam::dynapix::ba_weight_clamp(d),
+                "ba_weight_clamp": dynapix_slam::weighting::ba_weight_clamp(d),
                 "threshold": c.method.thresholds().then_some(d.gamma_add),
             },
             "config": c.to_json_value(),

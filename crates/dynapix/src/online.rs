@@ -50,8 +50,9 @@ use dynapix_motion::{
     FloatImage, FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, RigidFrame,
     RigidityParams, Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
 };
+use dynapix_slam::FeatureStage;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::system::{FeatureStage, FrameInput, MappingOutcome, System, SystemParams};
+use dynapix_slam::system::{FrameInput, MappingOutcome, System, SystemParams};
 use image::{GrayImage, RgbImage};
 
 use crate::config::{Config, Cues};

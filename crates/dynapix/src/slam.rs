@@ -14,9 +14,10 @@ use dynapix_io::images::{read_mask, read_static_weights};
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
 use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
-use dynapix_slam::system::{FeatureStage, Features, FrameInput, FrameResult, System, SystemParams};
+use dynapix_slam::system::{FrameInput, FrameResult, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
+use dynapix_slam::{FeatureStage, Features};
 use image::{GrayImage, RgbImage};
 use serde::Serialize;
 

@@ -28,7 +28,7 @@ use dynapix::{
     RgbdFrame,
 };
 use dynapix_io::{FrameStatus, OutputFolder, StampedPose, StampedStatus, Trajectory};
-use dynapix_slam::dynapix::ProbUpdate;
+use dynapix_slam::weighting::ProbUpdate;
 use serde_json::{Value, json};
 
 use super::common::{

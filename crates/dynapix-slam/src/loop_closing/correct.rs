@@ -22,10 +22,12 @@ use dynapix_geometry::Se3;
 use dynapix_optim::BaParams;
 use nalgebra::Vector3;
 
+use crate::camera::RgbdCamera;
 use crate::features::hamming;
-use crate::frame::{RgbdCamera, normalized, transform};
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::Map;
 use crate::matcher::MatcherParams;
+use crate::pose::{normalized, transform};
 use crate::weighting::{BirthSource, may_birth_in_keyframe};
 
 use super::LoopMatch;

@@ -28,9 +28,12 @@ use std::collections::BTreeSet;
 use dynapix_geometry::Se3;
 use nalgebra::{Vector2, Vector3};
 
-use crate::frame::{RgbdCamera, transform};
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::camera::RgbdCamera;
+
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::Map;
 use crate::matcher::MatcherParams;
+use crate::pose::transform;
 use crate::vocab::Vocabulary;
 
 use super::LoopMatch;
@@ -493,7 +496,7 @@ impl LoopDetector {
         }
         let (loop_id, t12, mut matched) = found?;
         let loop_kf = map.keyframe(loop_id)?;
-        let corrected = crate::frame::normalized(&(t12 * loop_kf.pose));
+        let corrected = crate::pose::normalized(&(t12 * loop_kf.pose));
         let loop_points = loop_points(map, loop_id);
         search::search_by_projection(
             map,

@@ -12,9 +12,12 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::PersistError;
+use crate::camera::ImageBounds;
+use crate::features::ScalePyramid;
 use crate::features::{Descriptor, KeyPoint};
-use crate::frame::{FeatureGrid, ImageBounds, ScalePyramid};
-use crate::map::{KeyFrame, KeyFrameId, Map, MapParams, MapPoint, MapPointId};
+use crate::frame::FeatureGrid;
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::{KeyFrame, Map, MapParams, MapPoint};
 
 /// One keyframe with dense indices.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

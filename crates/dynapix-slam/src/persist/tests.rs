@@ -13,8 +13,9 @@ use rand_chacha::ChaCha8Rng;
 use super::*;
 use crate::features::FeatureExtractor;
 use crate::features::{Descriptor, KeyPoint};
-use crate::frame::{DepthImage, transform};
-use crate::map::KeyFrameId;
+use crate::frame::DepthImage;
+use crate::ids::KeyFrameId;
+use crate::pose::transform;
 use crate::system::{FrameInput, FrameResult, System, SystemParams};
 use crate::tracking::TrackingState;
 

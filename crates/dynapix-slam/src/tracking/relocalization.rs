@@ -14,7 +14,8 @@ use nalgebra::{Vector2, Vector3};
 
 use super::Tracker;
 use crate::frame::Frame;
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::Map;
 use crate::matcher;
 
 /// Relocalisation parameters (ORB-SLAM2 defaults).
@@ -222,7 +223,7 @@ pub(super) fn relocalize(tracker: &mut Tracker, map: &mut Map, frame: &mut Frame
         let Some((pose, inliers)) = pnp_pose(tracker, map, frame, &pairs, seed) else {
             continue;
         };
-        frame.pose = Some(crate::frame::normalized(&pose));
+        frame.pose = Some(crate::pose::normalized(&pose));
         frame.map_points.iter_mut().for_each(|m| *m = None);
         for &i in &inliers {
             frame.map_points[i] = matches[i];

@@ -15,8 +15,9 @@ use dynapix_geometry::Se3;
 use dynapix_optim::{PoseGraphEdge, PoseGraphParams, optimize_pose_graph};
 use nalgebra::Matrix6;
 
-use crate::frame::{normalized, transform};
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::Map;
+use crate::pose::{normalized, transform};
 
 use super::CorrectionParams;
 

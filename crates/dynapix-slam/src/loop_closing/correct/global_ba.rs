@@ -14,10 +14,12 @@ use std::collections::HashMap;
 use dynapix_geometry::Se3;
 use dynapix_optim::{BaParams, BaProblem, bundle_adjust};
 
+use crate::camera::RgbdCamera;
 use crate::camera::stereo_camera;
-use crate::frame::{RgbdCamera, normalized, transform};
+use crate::ids::{KeyFrameId, MapPointId};
 use crate::local_mapping::weighted_ba_edges;
-use crate::map::{KeyFrameId, Map, MapPointId};
+use crate::map::Map;
+use crate::pose::{normalized, transform};
 
 use super::CorrectionParams;
 

@@ -11,8 +11,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
+use crate::features::ScalePyramid;
 use crate::features::{Descriptor, KeyPoint};
-use crate::frame::{FeatureGrid, ScalePyramid};
+use crate::frame::FeatureGrid;
 use crate::local_mapping::{LocalMapper, LocalMappingParams};
 use crate::map::{KeyFrame, MapParams};
 

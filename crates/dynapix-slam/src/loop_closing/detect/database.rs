@@ -8,7 +8,9 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 
-use crate::map::{KeyFrame, KeyFrameId, Map};
+use crate::map::{KeyFrame, Map};
+
+use crate::ids::KeyFrameId;
 
 /// Inverted index of keyframe words.
 #[derive(Clone, Debug, Default)]

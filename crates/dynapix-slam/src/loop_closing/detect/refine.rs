@@ -11,7 +11,7 @@
 
 use dynapix_geometry::{PinholeCamera, Se3, se3};
 
-use crate::frame::RgbdCamera;
+use crate::camera::RgbdCamera;
 use nalgebra::{Matrix3, Matrix6, Point3, SMatrix, Vector2, Vector3, Vector6};
 
 use super::solver::project;
@@ -215,7 +215,7 @@ fn lm(
             let cand = se3::exp(&step) * t;
             let c = cost(cam, &cand, pairs, active, st);
             if c < current {
-                t = crate::frame::normalized(&cand);
+                t = crate::pose::normalized(&cand);
                 current = c;
                 lambda = (lambda * 0.1).max(1e-9);
                 improved = true;

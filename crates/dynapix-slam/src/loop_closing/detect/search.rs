@@ -7,10 +7,12 @@
 use dynapix_geometry::Se3;
 use nalgebra::Vector3;
 
+use crate::camera::RgbdCamera;
 use crate::features::hamming;
-use crate::frame::{RgbdCamera, transform};
-use crate::map::{KeyFrame, KeyFrameId, Map, MapPoint, MapPointId};
+use crate::ids::{KeyFrameId, MapPointId};
+use crate::map::{KeyFrame, Map, MapPoint};
 use crate::matcher::{MatcherParams, RotationHistogram};
+use crate::pose::transform;
 
 /// Matches the map points of `kf1` to those of `kf2` among keypoints sharing a vocabulary
 /// node: Hamming distance below `TH_LOW`, the ratio test against the second best, one-to-one

@@ -10,9 +10,11 @@ use image::GrayImage;
 use rayon::prelude::*;
 
 use super::{DetectionDiagnostics, DetectionOutcome, DetectionParams, LoopDetector};
+use crate::camera::RgbdCamera;
 use crate::features::FeatureExtractor;
+use crate::features::ScalePyramid;
 use crate::features::{Descriptor, KeyPoint};
-use crate::frame::{DepthImage, RgbdCamera, ScalePyramid};
+use crate::frame::DepthImage;
 use crate::loop_closing::LoopMatch;
 use crate::map::{KeyFrame, Map, MapParams};
 use crate::orb::{OrbExtractor, OrbParams, rgb_to_gray_orbslam};
