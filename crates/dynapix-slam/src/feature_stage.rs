@@ -21,11 +21,17 @@ pub struct Features {
     pub seconds: f64,
 }
 
-/// The feature extraction of a [`crate::system::System`] on its own. It depends only on the frame (its grey
-/// image and, with [`crate::system::SystemParams::static_features_min_weight`], its weights), never on the
-/// map, so a copy ([`crate::system::System::feature_stage`]) can run ahead of tracking on another thread and
-/// gives exactly the features [`crate::system::System::process`] would extract (see
-/// [`crate::system::System::process_features`]).
+/// The feature extraction of a [`System`] on its own. It depends only on the frame (its grey
+/// image and, with [`SystemParams::static_features_min_weight`], its weights), never on the
+/// map, so a copy ([`System::feature_stage`]) can run ahead of tracking on another thread and
+/// gives exactly the features [`System::process`] would extract (see
+/// [`System::process_features`]).
+///
+/// [`System`]: crate::system::System
+/// [`System::feature_stage`]: crate::system::System::feature_stage
+/// [`System::process`]: crate::system::System::process
+/// [`System::process_features`]: crate::system::System::process_features
+/// [`SystemParams::static_features_min_weight`]: crate::system::SystemParams::static_features_min_weight
 #[derive(Clone, Debug)]
 pub struct FeatureStage<E> {
     pub(crate) extractor: E,

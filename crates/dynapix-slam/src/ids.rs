@@ -1,14 +1,16 @@
 //! Typed, generational ids of the map's keyframes and map points. A leaf module: frames hold
 //! ids of map points and the map hands them out, so both import them from here.
 
-/// Id of a keyframe in the [`crate::map::Map`] (index + generation; a culled keyframe's id goes stale).
+/// Id of a keyframe in the [`crate::map::Map`] (index + generation; a culled keyframe's id
+/// goes stale).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct KeyFrameId {
     pub(crate) index: u32,
     pub(crate) generation: u32,
 }
 
-/// Id of a map point in the [`crate::map::Map`] (index + generation; a culled point's id goes stale).
+/// Id of a map point in the [`crate::map::Map`] (index + generation; a culled point's id goes
+/// stale).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct MapPointId {
     pub(crate) index: u32,

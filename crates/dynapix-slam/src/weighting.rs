@@ -5,18 +5,18 @@
 //! - Per-keypoint weight w = 1 − P is sampled once in [`crate::frame::Frame::new`] at the
 //!   keypoint's image (distorted) position with bounds checks; keypoints with w = 0
 //!   (P > 0.999 after the reference's 16-bit quantisation) are dropped there.
-//! - Map-point birth ([`params::may_birth`]): one gate P ≤ γ_add at every source of new points
+//! - Map-point birth ([`may_birth`]): one gate P ≤ γ_add at every source of new points
 //!   (initial map, tracking keyframes, triangulation, fusion) in `paper` mode; in `reference`
 //!   mode only tracking keyframes are gated, with the reference's exact `w == 1` test
 //!   (spec §2.5). Semantic masks (DynaPix+) block birth in both modes.
-//! - Per-map-point motion probability ([`params::update_point_probability`]) from the keypoints it is
-//!   matched to in tracked frames, and removal when it reaches γ_del ([`params::should_delete`]).
-//! - Fine optimisation: weights clamped to [1 − γ_del, 1] ([`params::ba_weight_clamp`]), outlier tests
-//!   on unweighted residuals (`paper`, via [`dynapix_optim::WeightMode::Paper`]).
-
+//! - Per-map-point motion probability ([`update_point_probability`]) from the keypoints it is
+//!   matched to in tracked frames, and removal when it reaches γ_del ([`should_delete`]).
+//! - Fine optimisation: weights clamped to [1 − γ_del, 1] ([`ba_weight_clamp`]), outlier
+//!   tests on unweighted residuals (`paper`, via [`dynapix_optim::WeightMode::Paper`]).
 //!
-//! [`params`] holds the parameters and the rules on plain values (below the frame and the map);
-//! [`apply`] applies them to frames and the map (above both).
+//! Two layers: [`params`] holds the parameters and the rules on plain values and sits below
+//! the frame and the map (the map keeps [`DynaPixParams`] in its parameters); [`apply`]
+//! applies the rules to frames and the map and sits above both.
 
 pub mod apply;
 pub mod params;
