@@ -90,9 +90,9 @@ impl MovingParams {
 /// Grey level of an RGB image (ITU-R BT.601 weights) for the flow.
 pub fn to_gray(img: &RgbImage) -> GrayImage {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { to_gray_avx2(img) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { to_gray_avx2(avx2, img) };
     }
     to_gray_body(img)
 }
@@ -101,7 +101,7 @@ pub fn to_gray(img: &RgbImage) -> GrayImage {
 /// multiply-add, so the same grey levels (test `grey_is_the_same_in_every_build`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn to_gray_avx2(img: &RgbImage) -> GrayImage {
+fn to_gray_avx2(_: dynapix_simd::Avx2, img: &RgbImage) -> GrayImage {
     to_gray_body(img)
 }
 

@@ -523,9 +523,9 @@ pub fn correspondences(
     let pair = Pair::new(depth_i, depth_j, flow, rays, params)?;
     let stride = params.stride_for(rays.camera());
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return Ok(unsafe { correspondences_avx2(&pair, stride) });
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return Ok(unsafe { correspondences_avx2(avx2, &pair, stride) });
     }
     Ok(correspondences_body(&pair, stride))
 }
@@ -535,7 +535,7 @@ pub fn correspondences(
 /// `correspondences_are_the_same_in_every_build`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn correspondences_avx2(pair: &Pair<'_>, stride: usize) -> Correspondences {
+fn correspondences_avx2(_: dynapix_simd::Avx2, pair: &Pair<'_>, stride: usize) -> Correspondences {
     correspondences_body(pair, stride)
 }
 
@@ -606,16 +606,22 @@ impl Columns {
 /// is identical (test `column_count_equals_the_point_by_point_count`).
 fn count_inliers_soa(motion: &Se3, c: &Columns, model: &Model, chi2: f64) -> usize {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { count_inliers_avx2(motion, c, model, chi2) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { count_inliers_avx2(avx2, motion, c, model, chi2) };
     }
     count_inliers_body(motion, c, model, chi2)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn count_inliers_avx2(motion: &Se3, c: &Columns, model: &Model, chi2: f64) -> usize {
+fn count_inliers_avx2(
+    _: dynapix_simd::Avx2,
+    motion: &Se3,
+    c: &Columns,
+    model: &Model,
+    chi2: f64,
+) -> usize {
     count_inliers_body(motion, c, model, chi2)
 }
 
@@ -857,9 +863,9 @@ fn residual_row(
     row: &mut [f32],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { residual_row_avx2(pair, model, r, t, y, row) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe { residual_row_avx2(avx2, pair, model, r, t, y, row) };
         return;
     }
     residual_row_body(pair, model, r, t, y, row);
@@ -868,6 +874,7 @@ fn residual_row(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn residual_row_avx2(
+    _: dynapix_simd::Avx2,
     pair: &Pair<'_>,
     model: &Model,
     r: &Matrix3<f64>,

@@ -212,15 +212,15 @@ fn splat_nearest(
     out: &mut [f32],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx512f") {
-        // SAFETY: the CPU has AVX-512F, checked just above.
-        unsafe { splat_nearest_avx512(cam, table, rays, view, out) };
+    if let Some(avx512) = dynapix_simd::Avx512F::detect() {
+        // SAFETY: the token proves the CPU has AVX-512F.
+        unsafe { splat_nearest_avx512(avx512, cam, table, rays, view, out) };
         return;
     }
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { splat_nearest_avx2(cam, table, rays, view, out) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe { splat_nearest_avx2(avx2, cam, table, rays, view, out) };
         return;
     }
     splat_nearest_any(cam, table, rays, view, out);
@@ -231,6 +231,7 @@ fn splat_nearest(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 fn splat_nearest_avx512(
+    _: dynapix_simd::Avx512F,
     cam: &PinholeCamera,
     table: Option<&dynapix_geometry::camera::PixelRays>,
     rays: &Rays,
@@ -262,6 +263,7 @@ fn splat_nearest_any(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn splat_nearest_avx2(
+    _: dynapix_simd::Avx2,
     cam: &PinholeCamera,
     table: Option<&dynapix_geometry::camera::PixelRays>,
     rays: &Rays,
@@ -466,14 +468,14 @@ fn static_depth_row(
 ) {
     #[cfg(target_arch = "x86_64")]
     if let Ok(splats) = <&[Vec<f32>; 24]>::try_from(splats) {
-        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
-            // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
-            unsafe { static_depth_row_24_avx512(splats, params, j, row) };
+        if let Some(avx512) = dynapix_simd::Avx512Vl::detect() {
+            // SAFETY: the token proves the CPU has AVX-512F and AVX-512VL.
+            unsafe { static_depth_row_24_avx512(avx512, splats, params, j, row) };
             return;
         }
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            unsafe { static_depth_row_24_avx2(splats, params, j, row) };
+        if let Some(avx2) = dynapix_simd::Avx2::detect() {
+            // SAFETY: the token proves the CPU has AVX2.
+            unsafe { static_depth_row_24_avx2(avx2, splats, params, j, row) };
             return;
         }
     }
@@ -525,31 +527,36 @@ fn gather_block(splats: &[Vec<f32>], k0: usize, m: usize, cols: &mut [[f32; LANE
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl")]
 fn static_depth_row_24_avx512(
+    avx512: dynapix_simd::Avx512Vl,
     splats: &[Vec<f32>; 24],
     params: &StaticDepthParams,
     j: usize,
     row: &mut [f32],
 ) {
-    static_depth_row_24(splats, params, j, row);
+    static_depth_row_24(avx512.avx2(), splats, params, j, row);
 }
 
 /// [`static_depth_row_24`] compiled for AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn static_depth_row_24_avx2(
+    avx2: dynapix_simd::Avx2,
     splats: &[Vec<f32>; 24],
     params: &StaticDepthParams,
     j: usize,
     row: &mut [f32],
 ) {
-    static_depth_row_24(splats, params, j, row);
+    static_depth_row_24(avx2, splats, params, j, row);
 }
 
 /// [`static_depth_row_any`] for 24 views: whole blocks are loaded from the splats straight
-/// into the registers of the fixed network. Only inlined into functions compiled with AVX.
+/// into the registers of the fixed network. Inlined into the kernels above, so compiled
+/// with their instruction set; the token proves that the AVX intrinsics may run (it cannot
+/// carry `#[target_feature]` itself: that excludes `#[inline(always)]`).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn static_depth_row_24(
+    avx2: dynapix_simd::Avx2,
     splats: &[Vec<f32>; 24],
     params: &StaticDepthParams,
     j: usize,
@@ -564,17 +571,17 @@ fn static_depth_row_24(
         let m = LANES.min(wu - i0);
         let k0 = j * wu + i0;
         let mut v: [__m256; 24] = if m == LANES && whole_rows {
-            // SAFETY: AVX is enabled in the callers; k0 + LANES ≤ end ≤ every splat's
+            // SAFETY: the token proves the CPU has AVX; k0 + LANES ≤ end ≤ every splat's
             // length, checked above.
             std::array::from_fn(|r| unsafe { _mm256_loadu_ps(splats[r].as_ptr().add(k0)) })
         } else {
             gather_block(splats, k0, m, &mut cols);
-            // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
+            // SAFETY: the token proves the CPU has AVX; each row holds LANES `f32`.
             cols.map(|c| unsafe { _mm256_loadu_ps(c.as_ptr()) })
         };
-        network_24_ymm(&mut v);
+        network_24_ymm(avx2, &mut v);
         for (c, x) in cols.iter_mut().zip(v) {
-            // SAFETY: AVX is enabled in the callers; each row holds LANES `f32`.
+            // SAFETY: the token proves the CPU has AVX; each row holds LANES `f32`.
             unsafe { _mm256_storeu_ps(c.as_mut_ptr(), x) };
         }
         let lanes = farthest_supported_lanes(&cols, params);
@@ -715,9 +722,9 @@ fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
         return;
     }
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { sort_lanes_avx2(cols, network) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe { sort_lanes_avx2(avx2, cols, network) };
         return;
     }
     sort_lanes_body(cols, network);
@@ -726,19 +733,19 @@ fn sort_lanes(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
 /// [`sort_lanes_body`] compiled for AVX2 (8 lanes of `f32` per instruction).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn sort_lanes_avx2(cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
+fn sort_lanes_avx2(_: dynapix_simd::Avx2, cols: &mut [[f32; LANES]], network: &[(usize, usize)]) {
     sort_lanes_body(cols, network);
 }
 
 /// The 24-row network on `ymm` registers. `min(b, a)` is `b < a ? b : a` and `max(a, b)` is
 /// `a > b ? a : b`, the selection of [`compare_exchange`] (for NaN too), so the same bits.
-/// Only inlined into functions compiled with AVX (24 rows fit in the 32 registers of
-/// AVX-512VL; with AVX2's 16 some spill).
+/// Inlined into the kernels (24 rows fit in the 32 registers of AVX-512VL; with AVX2's 16
+/// some spill); the token proves that the AVX intrinsics may run.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn network_24_ymm(v: &mut [std::arch::x86_64::__m256; 24]) {
+fn network_24_ymm(_: dynapix_simd::Avx2, v: &mut [std::arch::x86_64::__m256; 24]) {
     use std::arch::x86_64::{_mm256_max_ps, _mm256_min_ps};
-    // SAFETY: the callers are compiled with AVX.
+    // SAFETY: the token proves the CPU has AVX.
     apply_network_24(v, |a, b| unsafe {
         (_mm256_min_ps(b, a), _mm256_max_ps(a, b))
     });
@@ -862,9 +869,9 @@ fn run_below_top(
     tol: &[f32; LANES],
 ) -> [u32; LANES] {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { run_below_top_avx2(cols, n_fin, top, tol) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { run_below_top_avx2(avx2, cols, n_fin, top, tol) };
     }
     run_below_top_body(cols, n_fin, top, tol)
 }
@@ -872,6 +879,7 @@ fn run_below_top(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn run_below_top_avx2(
+    _: dynapix_simd::Avx2,
     cols: &[[f32; LANES]],
     n_fin: &[u32; LANES],
     top: &[f32; LANES],
@@ -998,9 +1006,9 @@ pub fn geometric_term(
         sd.depth.dimensions(),
     )?;
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return Ok(unsafe { geometric_term_avx2(current, sd, params) });
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return Ok(unsafe { geometric_term_avx2(avx2, current, sd, params) });
     }
     Ok(geometric_term_body(current, sd, params))
 }
@@ -1010,6 +1018,7 @@ pub fn geometric_term(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn geometric_term_avx2(
+    _: dynapix_simd::Avx2,
     current: &WorkingDepth,
     sd: &StaticDepth,
     params: &StaticDepthParams,
@@ -1285,23 +1294,21 @@ mod tests {
                     assert!(same_bits(&c2, &b));
                     // Every instruction set the CPU has gives the same bits.
                     #[cfg(target_arch = "x86_64")]
-                    for (isa, ok) in [
-                        ("avx2", std::is_x86_feature_detected!("avx2")),
-                        ("avx512f", std::is_x86_feature_detected!("avx512f")),
-                    ] {
-                        if !ok {
-                            continue;
+                    {
+                        if let Some(avx2) = dynapix_simd::Avx2::detect() {
+                            c2.fill(f32::INFINITY);
+                            let t = table.as_deref();
+                            // SAFETY: the token proves the CPU has AVX2.
+                            unsafe { splat_nearest_avx2(avx2, &c, t, &rays, &view, &mut c2) };
+                            assert!(same_bits(&c2, &b), "avx2");
                         }
-                        c2.fill(f32::INFINITY);
-                        // SAFETY: the CPU has the instruction set, checked just above.
-                        unsafe {
-                            if isa == "avx2" {
-                                splat_nearest_avx2(&c, table.as_deref(), &rays, &view, &mut c2);
-                            } else {
-                                splat_nearest_avx512(&c, table.as_deref(), &rays, &view, &mut c2);
-                            }
+                        if let Some(avx512) = dynapix_simd::Avx512F::detect() {
+                            c2.fill(f32::INFINITY);
+                            let t = table.as_deref();
+                            // SAFETY: the token proves the CPU has AVX-512F.
+                            unsafe { splat_nearest_avx512(avx512, &c, t, &rays, &view, &mut c2) };
+                            assert!(same_bits(&c2, &b), "avx512f");
                         }
-                        assert!(same_bits(&c2, &b), "{isa}");
                     }
                 }
             }
@@ -1369,16 +1376,14 @@ mod tests {
             #[cfg(target_arch = "x86_64")]
             {
                 let s24 = <&[Vec<f32>; 24]>::try_from(&splats[..]).unwrap();
-                if std::is_x86_feature_detected!("avx512f")
-                    && std::is_x86_feature_detected!("avx512vl")
-                {
-                    // SAFETY: the CPU has AVX-512F and AVX-512VL, checked just above.
-                    unsafe { static_depth_row_24_avx512(s24, &params, j, &mut got) };
+                if let Some(avx512) = dynapix_simd::Avx512Vl::detect() {
+                    // SAFETY: the token proves the CPU has AVX-512F and AVX-512VL.
+                    unsafe { static_depth_row_24_avx512(avx512, s24, &params, j, &mut got) };
                     assert_eq!(bits(&got), bits(&want), "avx512 row {j}");
                 }
-                if std::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU has AVX2, checked just above.
-                    unsafe { static_depth_row_24_avx2(s24, &params, j, &mut got) };
+                if let Some(avx2) = dynapix_simd::Avx2::detect() {
+                    // SAFETY: the token proves the CPU has AVX2.
+                    unsafe { static_depth_row_24_avx2(avx2, s24, &params, j, &mut got) };
                     assert_eq!(bits(&got), bits(&want), "avx2 row {j}");
                 }
             }
