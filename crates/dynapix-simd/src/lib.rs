@@ -191,8 +191,7 @@ mod tests {
             );
             assert_eq!(
                 Avx512F::detect().is_some(),
-                std::is_x86_feature_detected!("avx2")
-                    && std::is_x86_feature_detected!("avx512f")
+                std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("avx512f")
             );
         }
         // Asking twice gives the cached answer, and a stronger token implies the weaker ones.
