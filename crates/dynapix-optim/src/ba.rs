@@ -16,8 +16,8 @@
 use crate::edge;
 use crate::pose::{LM_MAX_TRIALS, LM_TAU};
 use crate::problem::{BaParams, BaProblem, BaResult, Observation, StereoCamera, WeightMode};
-use dynapix_simd::Avx2;
 use dynapix_geometry::{Se3, se3};
+use dynapix_simd::Avx2;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 use std::ops::Range;
