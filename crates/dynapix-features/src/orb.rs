@@ -634,9 +634,9 @@ pub fn rgb_to_gray(img: &RgbImage, mode: GrayConversion) -> GrayImage {
         GrayConversion::OrbSlam2Swapped => (CB, CR),
     };
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { rgb_to_gray_avx2(img, [wr, CG, wb]) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { rgb_to_gray_avx2(avx2, img, [wr, CG, wb]) };
     }
     rgb_to_gray_body(img, [wr, CG, wb])
 }
@@ -645,7 +645,7 @@ pub fn rgb_to_gray(img: &RgbImage, mode: GrayConversion) -> GrayImage {
 /// arithmetic, so the same grey levels, test `grey_is_the_same_in_every_build`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn rgb_to_gray_avx2(img: &RgbImage, weights: [u32; 3]) -> GrayImage {
+fn rgb_to_gray_avx2(_: dynapix_simd::Avx2, img: &RgbImage, weights: [u32; 3]) -> GrayImage {
     rgb_to_gray_body(img, weights)
 }
 

@@ -552,7 +552,14 @@ fn patch_sums_8_sse(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32; 4] {
+fn patch_sums_8_avx(
+    avx2: dynapix_simd::Avx2,
+    ctx: &LevelCtx,
+    px: usize,
+    py: usize,
+    x: f32,
+    y: f32,
+) -> [f32; 4] {
     use std::arch::x86_64::*;
     const N: usize = 8;
     let (aw, bw) = (ctx.a.w, ctx.bp.w);
@@ -587,7 +594,7 @@ fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
             sy = _mm256_add_ps(sy, _mm256_mul_ps(d, _mm256_loadu_ps(gyp.add(oa))));
         }
     }
-    sum_lanes_in_order_4(sd, sdd, sx, sy)
+    sum_lanes_in_order_4(avx2, sd, sdd, sx, sy)
 }
 
 /// [`sum_in_order`] of the 8 lanes of each of four vectors, all four at once: the vectors
@@ -598,6 +605,7 @@ fn patch_sums_8_avx(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f3
 #[target_feature(enable = "avx2")]
 #[inline]
 fn sum_lanes_in_order_4(
+    _: dynapix_simd::Avx2,
     a: std::arch::x86_64::__m256,
     b: std::arch::x86_64::__m256,
     c: std::arch::x86_64::__m256,
@@ -654,7 +662,8 @@ fn patch_sums_dyn(ctx: &LevelCtx, px: usize, py: usize, x: f32, y: f32) -> [f32;
 /// Patch cost at displacement (u, v) and the Gauss-Newton right-hand side:
 /// `(SSD, Σ ∇A·d)`, both mean-normalised when enabled.
 #[inline(always)]
-fn evaluate<const AVX: bool>(
+fn evaluate(
+    isa: Option<dynapix_simd::Avx2>,
     ctx: &LevelCtx,
     t: &Template,
     px: usize,
@@ -666,11 +675,11 @@ fn evaluate<const AVX: bool>(
     let y = py as f32 + v + SEARCH_BORDER as f32;
     let [sd, sdd, sdx, sdy] = match ctx.ps {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `AVX` is only true in code reached through `sweep_band_avx2`, which runs
-        // after a run-time AVX2 check.
-        8 if AVX => unsafe { patch_sums_8_avx(ctx, px, py, x, y) },
-        #[cfg(target_arch = "x86_64")]
-        8 => patch_sums_8_sse(ctx, px, py, x, y),
+        8 => match isa {
+            // SAFETY: the token proves the CPU has AVX2.
+            Some(avx2) => unsafe { patch_sums_8_avx(avx2, ctx, px, py, x, y) },
+            None => patch_sums_8_sse(ctx, px, py, x, y),
+        },
         #[cfg(not(target_arch = "x86_64"))]
         8 => patch_sums::<8>(ctx, px, py, x, y),
         12 => patch_sums::<12>(ctx, px, py, x, y),
@@ -695,7 +704,8 @@ fn evaluate<const AVX: bool>(
 /// discarded (the match was lost).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn descend<const AVX: bool>(
+fn descend(
+    isa: Option<dynapix_simd::Avx2>,
     ctx: &LevelCtx,
     t: &Template,
     px: usize,
@@ -710,7 +720,7 @@ fn descend<const AVX: bool>(
     let mut prev = f32::INFINITY;
     for it in 0..iters {
         if it > 0 {
-            (ssd, bx, by) = evaluate::<AVX>(ctx, t, px, py, u, v);
+            (ssd, bx, by) = evaluate(isa, ctx, t, px, py, u, v);
         }
         let du = t.hinv[0] * bx + t.hinv[1] * by;
         let dv = t.hinv[1] * bx + t.hinv[2] * by;
@@ -745,18 +755,25 @@ fn sweep_band(
     propagate: bool,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked at run time just above).
-        unsafe { sweep_band_avx2(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe {
+            sweep_band_avx2(
+                avx2, ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate,
+            )
+        };
         return;
     }
-    sweep_band_impl::<false>(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate);
+    sweep_band_impl(
+        None, ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate,
+    );
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
 fn sweep_band_avx2(
+    avx2: dynapix_simd::Avx2,
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],
@@ -768,14 +785,27 @@ fn sweep_band_avx2(
     iters: usize,
     propagate: bool,
 ) {
-    sweep_band_impl::<true>(ctx, xs, ys, row0, tmpl, su, sv, forward, iters, propagate);
+    sweep_band_impl(
+        Some(avx2),
+        ctx,
+        xs,
+        ys,
+        row0,
+        tmpl,
+        su,
+        sv,
+        forward,
+        iters,
+        propagate,
+    );
 }
 
 /// One sweep over a band of patch rows. `forward` goes left-to-right/top-down and proposes
 /// the left and upper neighbours; backward the right and lower ones.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn sweep_band_impl<const AVX: bool>(
+fn sweep_band_impl(
+    isa: Option<dynapix_simd::Avx2>,
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],
@@ -803,7 +833,7 @@ fn sweep_band_impl<const AVX: bool>(
             if !t.textured && !propagate {
                 continue;
             }
-            let mut best = evaluate::<AVX>(ctx, &t, px, py, bu, bv);
+            let mut best = evaluate(isa, ctx, &t, px, py, bu, bv);
             if propagate {
                 let horiz = if forward {
                     (c > 0).then(|| idx - 1)
@@ -820,7 +850,7 @@ fn sweep_band_impl<const AVX: bool>(
                     if cu == bu && cv == bv {
                         continue;
                     }
-                    let e = evaluate::<AVX>(ctx, &t, px, py, cu, cv);
+                    let e = evaluate(isa, ctx, &t, px, py, cu, cv);
                     if e.0 < best.0 {
                         best = e;
                         bu = cu;
@@ -829,7 +859,7 @@ fn sweep_band_impl<const AVX: bool>(
                 }
             }
             let (u, v) = if t.textured {
-                descend::<AVX>(ctx, &t, px, py, bu, bv, best, iters)
+                descend(isa, ctx, &t, px, py, bu, bv, best, iters)
             } else {
                 (bu, bv)
             };
@@ -921,14 +951,15 @@ fn densify(
     u: &mut Plane,
     v: &mut Plane,
 ) {
-    densify_rows::<true, true>(ctx, xs, ys, su, sv, u, v);
+    densify_rows::<true>(dynapix_simd::Avx2::detect(), ctx, xs, ys, su, sv, u, v);
 }
 
 /// [`densify`], with (`FIXED`) or without the patch rows of 8 pixels as fixed-size arrays,
-/// which the compiler turns into whole-vector operations, and with (`AVX`, when the CPU has
+/// which the compiler turns into whole-vector operations, and with (`isa`, when the CPU has
 /// it) or without the rows compiled for AVX2 ([`simd`]).
 #[inline(always)]
-fn densify_rows<const FIXED: bool, const AVX: bool>(
+fn densify_rows<const FIXED: bool>(
+    isa: Option<dynapix_simd::Avx2>,
     ctx: &LevelCtx,
     xs: &[usize],
     ys: &[usize],
@@ -947,7 +978,8 @@ fn densify_rows<const FIXED: bool, const AVX: bool>(
         .for_each_init(
             || vec![0.0f32; w],
             |wsum, (y, (ru, rv))| {
-                simd::<AVX, _>(
+                simd(
+                    isa,
                     #[inline(always)]
                     || {
                         wsum.fill(0.0);
@@ -1192,10 +1224,10 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_and_baseline_sweeps_agree_bit_for_bit() {
-        if !std::is_x86_feature_detected!("avx2") {
+        let Some(avx2) = dynapix_simd::Avx2::detect() else {
             eprintln!("skipping: no AVX2 on this CPU");
             return;
-        }
+        };
         let (w, h) = (96, 72);
         let level = TestLevel::new(w, h);
         let ctx = level.ctx();
@@ -1207,9 +1239,15 @@ mod tests {
         let (mut u2, mut v2) = (init.clone(), init);
         let t = templates(&ctx, &xs, &ys);
         for forward in [true, false] {
-            sweep_band_impl::<false>(&ctx, &xs, &ys, 0, &t, &mut u1, &mut v1, forward, 12, true);
-            // SAFETY: AVX2 support was checked above.
-            unsafe { sweep_band_avx2(&ctx, &xs, &ys, 0, &t, &mut u2, &mut v2, forward, 12, true) };
+            sweep_band_impl(
+                None, &ctx, &xs, &ys, 0, &t, &mut u1, &mut v1, forward, 12, true,
+            );
+            // SAFETY: the token proves the CPU has AVX2.
+            unsafe {
+                sweep_band_avx2(
+                    avx2, &ctx, &xs, &ys, 0, &t, &mut u2, &mut v2, forward, 12, true,
+                )
+            };
         }
         assert_eq!((u1, v1), (u2, v2));
     }
@@ -1234,8 +1272,8 @@ mod tests {
             let planes = || (Plane::zeros(w, h), Plane::zeros(w, h));
             let ((mut u0, mut v0), (mut u1, mut v1), (mut u2, mut v2)) =
                 (planes(), planes(), planes());
-            densify_rows::<false, false>(&ctx, &xs, &ys, &su, &sv, &mut u0, &mut v0);
-            densify_rows::<true, false>(&ctx, &xs, &ys, &su, &sv, &mut u1, &mut v1);
+            densify_rows::<false>(None, &ctx, &xs, &ys, &su, &sv, &mut u0, &mut v0);
+            densify_rows::<true>(None, &ctx, &xs, &ys, &su, &sv, &mut u1, &mut v1);
             densify(&ctx, &xs, &ys, &su, &sv, &mut u2, &mut v2);
             let bits = |p: &Plane| p.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             for (u, v) in [(&u1, &v1), (&u2, &v2)] {
@@ -1249,10 +1287,10 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn four_lane_sums_at_once_equal_one_at_a_time() {
-        if !std::is_x86_feature_detected!("avx2") {
+        let Some(avx2) = dynapix_simd::Avx2::detect() else {
             eprintln!("skipping: no AVX2 on this CPU");
             return;
-        }
+        };
         use std::arch::x86_64::*;
         let cases: [[f32; 8]; 8] = [
             [-0.0; 8],
@@ -1276,10 +1314,10 @@ mod tests {
         for k in 0..cases.len() {
             let four = [0, 1, 2, 3].map(|i| cases[(k + i) % cases.len()]);
             let want = four.map(|c| sum_in_order(&c));
-            // SAFETY: AVX2 was checked above; each array holds 8 floats.
+            // SAFETY: the token proves the CPU has AVX2; each array holds 8 floats.
             let got = unsafe {
                 let v = four.map(|c| _mm256_loadu_ps(c.as_ptr()));
-                sum_lanes_in_order_4(v[0], v[1], v[2], v[3])
+                sum_lanes_in_order_4(avx2, v[0], v[1], v[2], v[3])
             };
             assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "{four:?}");
         }

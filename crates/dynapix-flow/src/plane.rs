@@ -17,26 +17,21 @@ pub(crate) fn min_rows(w: usize) -> usize {
     (MIN_PAR_PIXELS / w.max(1)).max(1)
 }
 
-/// Runs `f` compiled for AVX2 when `AVX` is true and the CPU has AVX2, else as it is.
+/// Runs `f` compiled for AVX2 when given the token ([`dynapix_simd::Avx2::vectorize`]), else
+/// as it is (the baseline build).
 ///
 /// A closure is compiled on its own, without the target features of the function that
 /// defines it, so a row closure handed to rayon from a `#[target_feature]` function runs the
-/// baseline build (SSE2, four lanes at best). Called inside such a closure, this trampoline
-/// inlines the closure's body into a function built for AVX2 (eight lanes). Element-wise
-/// `f32` arithmetic without fused multiply-add rounds the same in either build, so the
-/// results are the same bit for bit; `AVX = false` is the reference the tests compare with.
+/// baseline build (SSE2, four lanes at best). Called inside such a closure, this inlines the
+/// closure's body into a function built for AVX2 (eight lanes). Element-wise `f32`
+/// arithmetic without fused multiply-add rounds the same in either build, so the results
+/// are the same bit for bit; `None` is the reference the tests compare with.
 #[inline(always)]
-pub(crate) fn simd<const AVX: bool, R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if AVX && std::is_x86_feature_detected!("avx2") {
-        #[target_feature(enable = "avx2")]
-        fn avx2<R>(f: impl FnOnce() -> R) -> R {
-            f()
-        }
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { avx2(f) };
+pub(crate) fn simd<R>(isa: Option<dynapix_simd::Avx2>, f: impl FnOnce() -> R) -> R {
+    match isa {
+        Some(avx2) => avx2.vectorize(f),
+        None => f(),
     }
-    f()
 }
 
 /// A row-major single-channel `f32` image.
@@ -113,7 +108,8 @@ impl Plane {
             .enumerate()
             .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
-                simd::<true, _>(
+                simd(
+                    dynapix_simd::Avx2::detect(),
                     #[inline(always)]
                     || {
                         let y0 = (2 * y).min(h - 1);
@@ -146,7 +142,8 @@ impl Plane {
             .enumerate()
             .with_min_len(min_rows(nw))
             .for_each(|(y, row)| {
-                simd::<true, _>(
+                simd(
+                    dynapix_simd::Avx2::detect(),
                     #[inline(always)]
                     || {
                         let y0 = (2 * y).min(self.h - 1);
@@ -166,22 +163,23 @@ impl Plane {
 
     /// Sobel gradients divided by 8, i.e. in intensity units per pixel (replicated border).
     pub fn sobel(&self) -> (Plane, Plane) {
-        self.gradients::<true>(sobel_px, sobel_interior)
+        self.gradients(dynapix_simd::Avx2::detect(), sobel_px, sobel_interior)
     }
 
     /// Central differences `(f(x+1) - f(x-1)) / 2` (one-sided halves at the border).
     pub fn central_diff(&self) -> (Plane, Plane) {
-        self.gradients::<true>(central_px, central_interior)
+        self.gradients(dynapix_simd::Avx2::detect(), central_px, central_interior)
     }
 
     /// Both gradients of every pixel from its 3×3 neighbourhood (replicated border), rows in
     /// parallel: `px` computes pixel x of a row from the rows above, at and below it (`a`,
     /// `b`, `c`); `interior` does the same for pixels 1..w−1 on shifted slices, without
-    /// border logic, compiled for AVX2 when `AVX` ([`simd`]). Both must be the same
-    /// expressions, so every pixel gets the same bits either way.
+    /// border logic, compiled for AVX2 when given the `isa` token ([`simd`]). Both must be
+    /// the same expressions, so every pixel gets the same bits either way.
     #[inline(always)]
-    fn gradients<const AVX: bool>(
+    fn gradients(
         &self,
+        isa: Option<dynapix_simd::Avx2>,
         px: impl Fn(&[f32], &[f32], &[f32], usize) -> (f32, f32) + Sync,
         interior: impl Fn(&[f32], &[f32], &[f32], &mut [f32], &mut [f32]) + Sync,
     ) -> (Plane, Plane) {
@@ -206,7 +204,8 @@ impl Plane {
                     (rx[x], ry[x]) = px(a, b, c, x);
                 }
                 if w > 2 {
-                    simd::<AVX, _>(
+                    simd(
+                        isa,
                         #[inline(always)]
                         || interior(a, b, c, &mut rx[1..w - 1], &mut ry[1..w - 1]),
                     );
@@ -355,7 +354,8 @@ impl ResizeRows {
             .zip(used.par_iter())
             .with_min_len(min_rows(dw))
             .for_each(|((ru, rv), &y)| {
-                simd::<true, _>(
+                simd(
+                    dynapix_simd::Avx2::detect(),
                     #[inline(always)]
                     || {
                         let (su, sv) =
@@ -403,7 +403,8 @@ pub fn resize_flow(u: &Plane, v: &Plane, dw: usize, dh: usize) -> (Plane, Plane)
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|((ru, rv), &(y0, y1, fy))| {
-            simd::<true, _>(
+            simd(
+                dynapix_simd::Avx2::detect(),
                 #[inline(always)]
                 || {
                     let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
@@ -433,7 +434,8 @@ pub fn resize_flow_interleaved(u: &Plane, v: &Plane, dw: usize, dh: usize) -> Ve
         .zip(rows.par_iter())
         .with_min_len(min_rows(dw))
         .for_each(|(row, &(y0, y1, fy))| {
-            simd::<true, _>(
+            simd(
+                dynapix_simd::Avx2::detect(),
                 #[inline(always)]
                 || {
                     let ((u0, v0), (u1, v1)) = (h.row(y0), h.row(y1));
@@ -459,7 +461,8 @@ pub fn warp_plane(src: &Plane, u: &Plane, v: &Plane) -> Plane {
         .enumerate()
         .with_min_len(min_rows(w))
         .for_each(|(y, row)| {
-            simd::<true, _>(
+            simd(
+                dynapix_simd::Avx2::detect(),
                 #[inline(always)]
                 || {
                     let o = y * w;
@@ -512,7 +515,7 @@ mod tests {
                 (p.sobel(), px_all(sobel_px)),
                 (p.central_diff(), px_all(central_px)),
                 (
-                    p.gradients::<false>(sobel_px, sobel_interior),
+                    p.gradients(None, sobel_px, sobel_interior),
                     px_all(sobel_px),
                 ),
             ] {

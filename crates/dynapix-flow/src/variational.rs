@@ -199,11 +199,12 @@ impl RbSystem {
 /// multiply-add and reductions kept in order, so the same bits as the baseline build (test
 /// `avx2_refinement_equals_baseline`).
 pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &VariationalParams) {
-    refine_body::<true>(i0, i1, u, v, p);
+    refine_body(dynapix_simd::Avx2::detect(), i0, i1, u, v, p);
 }
 
 #[inline(always)]
-fn refine_body<const AVX: bool>(
+fn refine_body(
+    isa: Option<dynapix_simd::Avx2>,
     i0: &Plane,
     i1: &Plane,
     u: &mut Plane,
@@ -228,7 +229,7 @@ fn refine_body<const AVX: bool>(
     for _ in 0..p.fixed_point_iterations {
         merge_rb(&lay, &du, &mut du_full);
         merge_rb(&lay, &dv, &mut dv_full);
-        smoothness_weights::<AVX>(u, v, &du_full, &dv_full, p, &mut cu, &mut cv, &mut ws);
+        smoothness_weights(isa, u, v, &du_full, &dv_full, p, &mut cu, &mut cv, &mut ws);
         let env = BuildEnv {
             lay: &lay,
             dc: &dc,
@@ -239,10 +240,10 @@ fn refine_body<const AVX: bool>(
             ws: &ws,
             p,
         };
-        env.fill_all::<AVX>(&mut sys);
+        env.fill_all(isa, &mut sys);
         for _ in 0..p.sor_iterations {
             for colour in 0..2 {
-                sor_half_sweep::<AVX>(&lay, colour, &sys, p.omega, &mut du, &mut dv);
+                sor_half_sweep(isa, &lay, colour, &sys, p.omega, &mut du, &mut dv);
             }
         }
     }
@@ -291,7 +292,8 @@ fn merge_rb(lay: &RbLayout, src: &[Vec<f32>; 2], dst: &mut Plane) {
 /// Robust smoothness weight per pixel from the forward differences of `w + dw`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn smoothness_weights<const AVX: bool>(
+fn smoothness_weights(
+    isa: Option<dynapix_simd::Avx2>,
     u: &Plane,
     v: &Plane,
     du: &Plane,
@@ -320,7 +322,8 @@ fn smoothness_weights<const AVX: bool>(
         .enumerate()
         .with_min_len(min_rows(w))
         .for_each(|(y, row)| {
-            simd::<AVX, _>(
+            simd(
+                isa,
                 #[inline(always)]
                 || {
                     let o = y * w;
@@ -445,7 +448,7 @@ fn rows_mut(s: &mut RbSystem, st: usize, h: usize) -> Vec<RowMut<'_>> {
 impl BuildEnv<'_> {
     /// Fills both colours' systems, rows in parallel.
     #[inline(always)]
-    fn fill_all<const AVX: bool>(&self, sys: &mut [RbSystem; 2]) {
+    fn fill_all(&self, isa: Option<dynapix_simd::Avx2>, sys: &mut [RbSystem; 2]) {
         let (st, h, w) = (self.lay.stride, self.lay.h, self.lay.w);
         let [s0, s1] = sys;
         let mut jobs: Vec<(RowMut<'_>, RowMut<'_>)> = rows_mut(s0, st, h)
@@ -460,7 +463,8 @@ impl BuildEnv<'_> {
                 |scratch, (y, (r0, r1))| {
                     // A one-call closure, so it is inlined into the AVX2 build with the
                     // row's work.
-                    simd::<AVX, _>(
+                    simd(
+                        isa,
                         #[inline(always)]
                         || self.fill_row_pair(y, scratch, r0, r1),
                     )
@@ -653,7 +657,8 @@ impl BuildEnv<'_> {
 /// parallel, and the zero padding makes the inner loop branch-free (a missing neighbour
 /// contributes weight × 0).
 #[inline(always)]
-fn sor_half_sweep<const AVX: bool>(
+fn sor_half_sweep(
+    isa: Option<dynapix_simd::Avx2>,
     lay: &RbLayout,
     colour: usize,
     sys: &[RbSystem; 2],
@@ -677,7 +682,8 @@ fn sor_half_sweep<const AVX: bool>(
         .enumerate()
         .with_min_len(min_rows(st))
         .for_each(|(y, (ru_row, rv_row))| {
-            simd::<AVX, _>(
+            simd(
+                isa,
                 #[inline(always)]
                 || {
                     let (sft, len) = lay.row(colour, y);
@@ -803,7 +809,7 @@ mod tests {
         let (mut u2, mut v2) = (u1.clone(), v1.clone());
         let p = VariationalParams::default();
         refine(&i0, &i1, &mut u1, &mut v1, &p);
-        refine_body::<false>(&i0, &i1, &mut u2, &mut v2, &p);
+        refine_body(None, &i0, &i1, &mut u2, &mut v2, &p);
         let bits = |a: &Plane| a.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&u1), bits(&u2));
         assert_eq!(bits(&v1), bits(&v2));
@@ -827,7 +833,7 @@ mod tests {
             let dc = data_coeffs(&i0, warp_plane(&i1, &u, &v), p.zeta);
             let (mut cu, mut cv, mut ws) =
                 (Plane::zeros(w, h), Plane::zeros(w, h), Plane::zeros(w, h));
-            smoothness_weights::<false>(&u, &v, &du, &dv, &p, &mut cu, &mut cv, &mut ws);
+            smoothness_weights(None, &u, &v, &du, &dv, &p, &mut cu, &mut cv, &mut ws);
             let lay = RbLayout::new(w, h);
             let env = BuildEnv {
                 lay: &lay,
@@ -840,7 +846,7 @@ mod tests {
                 p: &p,
             };
             let mut fast = [RbSystem::new(lay.len()), RbSystem::new(lay.len())];
-            env.fill_all::<true>(&mut fast);
+            env.fill_all(dynapix_simd::Avx2::detect(), &mut fast);
             let mut slow = [RbSystem::new(lay.len()), RbSystem::new(lay.len())];
             let mut data = vec![0.0f32; 5 * w];
             let [s0, s1] = &mut slow;

@@ -11,7 +11,7 @@ use dynapix_geometry::{PinholeCamera, Se3};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Translation3, UnitQuaternion};
 
-use crate::moving::to_gray;
+use crate::gray::to_gray;
 use crate::splat::{SplatParams, splat};
 use crate::{FloatImage, Mode, MotionError};
 

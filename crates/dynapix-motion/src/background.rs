@@ -171,7 +171,7 @@ pub fn reconstruct_background(
     let size = (cam.width, cam.height);
     check_size("background target image", size, rgb.dimensions())?;
     check_size("background target depth", size, depth.dimensions())?;
-    let gray = crate::moving::to_gray(rgb);
+    let gray = crate::gray::to_gray(rgb);
     let warped = sources
         .par_iter()
         .map(|s| {

@@ -25,6 +25,7 @@
 pub mod align;
 pub mod background;
 pub mod combine;
+mod gray;
 pub mod metrics;
 pub mod movable;
 pub mod moving;

@@ -17,6 +17,7 @@ use crate::edge;
 use crate::pose::{LM_MAX_TRIALS, LM_TAU};
 use crate::problem::{BaParams, BaProblem, BaResult, Observation, StereoCamera, WeightMode};
 use dynapix_geometry::{Se3, se3};
+use dynapix_simd::Avx2;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 use std::ops::Range;
@@ -296,21 +297,6 @@ impl Chunk {
     }
 }
 
-/// Proof that the CPU has AVX2 (only [`Avx2::detect`] makes one).
-#[derive(Clone, Copy)]
-struct Avx2(());
-
-impl Avx2 {
-    /// `Some` when the CPU has AVX2.
-    fn detect() -> Option<Self> {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            return Some(Avx2(()));
-        }
-        None
-    }
-}
-
 /// Defines a `Chunk` method that runs its `_body` compiled for AVX2 when given an [`Avx2`]
 /// proof, and the baseline build otherwise. The same IEEE operations in the same order either
 /// way (Rust never contracts to FMA), only wider registers: the results are bit-identical.
@@ -319,9 +305,9 @@ macro_rules! avx2_method {
         $(#[$m])*
         fn $name(&mut self, isa: Option<Avx2>, $($a: $t),*) {
             #[cfg(target_arch = "x86_64")]
-            if isa.is_some() {
-                // SAFETY: an `Avx2` exists only when the CPU has AVX2.
-                return unsafe { self.$avx($($a),*) };
+            if let Some(avx2) = isa {
+                // SAFETY: the token proves the CPU has AVX2.
+                return unsafe { self.$avx(avx2, $($a),*) };
             }
             let _ = isa;
             self.$body($($a),*)
@@ -329,7 +315,7 @@ macro_rules! avx2_method {
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
-        fn $avx(&mut self, $($a: $t),*) {
+        fn $avx(&mut self, _: Avx2, $($a: $t),*) {
             self.$body($($a),*)
         }
     };

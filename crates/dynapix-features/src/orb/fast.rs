@@ -112,9 +112,9 @@ pub(crate) fn detect_roi(
     out: &mut Vec<Corner>,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { detect_roi_avx2(img, roi, threshold, scratch, out) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe { detect_roi_avx2(avx2, img, roi, threshold, scratch, out) };
         return;
     }
     detect_roi_body(img, roi, threshold, scratch, out);
@@ -125,6 +125,7 @@ pub(crate) fn detect_roi(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn detect_roi_avx2(
+    _: dynapix_simd::Avx2,
     img: &Plane,
     roi: (usize, usize, usize, usize),
     threshold: i32,
@@ -260,9 +261,9 @@ fn scan(
 #[inline(always)]
 fn pretest(c: &[u8], circle: [&[u8]; 16], t: u8, flags: &mut [u8]) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { pretest_avx2(c, circle, t, flags) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        unsafe { pretest_avx2(avx2, c, circle, t, flags) };
         return;
     }
     pretest_base(c, circle, t, flags);
@@ -271,7 +272,7 @@ fn pretest(c: &[u8], circle: [&[u8]; 16], t: u8, flags: &mut [u8]) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline(never)]
-fn pretest_avx2(c: &[u8], circle: [&[u8]; 16], t: u8, flags: &mut [u8]) {
+fn pretest_avx2(_: dynapix_simd::Avx2, c: &[u8], circle: [&[u8]; 16], t: u8, flags: &mut [u8]) {
     pretest_body(c, circle, t, flags);
 }
 

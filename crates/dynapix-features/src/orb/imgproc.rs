@@ -106,9 +106,9 @@ impl HorizontalTaps {
 /// test `resize_dispatch_equals_the_baseline_build`).
 pub(crate) fn resize_linear(src: &Plane, w: usize, h: usize) -> Plane {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { resize_linear_avx2(src, w, h) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { resize_linear_avx2(avx2, src, w, h) };
     }
     resize_linear_body(src, w, h)
 }
@@ -117,7 +117,7 @@ pub(crate) fn resize_linear(src: &Plane, w: usize, h: usize) -> Plane {
 /// vertical blend; the baseline SSE2 build has no 32-bit vector multiply).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn resize_linear_avx2(src: &Plane, w: usize, h: usize) -> Plane {
+fn resize_linear_avx2(_: dynapix_simd::Avx2, src: &Plane, w: usize, h: usize) -> Plane {
     resize_linear_body(src, w, h)
 }
 
@@ -211,9 +211,9 @@ fn gaussian_kernel_q8(radius: usize, sigma: f64) -> Vec<i32> {
 /// fixed point per pass and rounding at the end (as OpenCV's 8-bit smoothing).
 pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { gaussian_blur_avx2(src, radius, sigma) };
+    if let Some(avx2) = dynapix_simd::Avx2::detect() {
+        // SAFETY: the token proves the CPU has AVX2.
+        return unsafe { gaussian_blur_avx2(avx2, src, radius, sigma) };
     }
     gaussian_blur_body(src, radius, sigma)
 }
@@ -222,7 +222,7 @@ pub(crate) fn gaussian_blur(src: &Plane, radius: usize, sigma: f64) -> Plane {
 /// same integer arithmetic, so the same result).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn gaussian_blur_avx2(src: &Plane, radius: usize, sigma: f64) -> Plane {
+fn gaussian_blur_avx2(_: dynapix_simd::Avx2, src: &Plane, radius: usize, sigma: f64) -> Plane {
     gaussian_blur_body(src, radius, sigma)
 }
 
