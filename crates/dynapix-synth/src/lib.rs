@@ -78,4 +78,7 @@ pub enum SynthError {
     /// Reading or writing a dataset failed (from `dynapix-io`).
     #[error(transparent)]
     Dataset(#[from] dynapix_io::IoError),
+    /// Writing a flow file failed.
+    #[error(transparent)]
+    Flow(#[from] dynapix_flow::FlowError),
 }
