@@ -22,8 +22,9 @@
 //! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
 //! - [`output`]: [`OutputFolder`], a command's result set written beside its output folder
 //!   and swapped in as a whole.
+//! - [`usage`]: CPU time and peak memory of this process (for benchmarks).
 
-#![warn(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod atomic;
 pub mod datasets;
@@ -38,6 +39,7 @@ mod testutil;
 mod text;
 pub mod trajectory;
 pub mod tum;
+pub mod usage;
 pub mod weights;
 
 pub use atomic::write_atomic;
