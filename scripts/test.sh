@@ -16,7 +16,7 @@ cargo fmt --all -- --check
 step "cargo clippy --workspace --all-targets --release -- -D warnings"
 cargo clippy --workspace --all-targets --release -- -D warnings
 step "cargo doc --workspace --no-deps (warnings are errors)"
-RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --release
 step "python3 scripts/check-unused-deps.py"
 python3 scripts/check-unused-deps.py
 step "cargo test --workspace --release"

@@ -18,6 +18,8 @@
 //!
 //! Augmentation of real sequences: [`augment`] and [`output::augment_sequence`].
 
+#![forbid(unsafe_code)]
+
 pub mod augment;
 pub mod movers;
 pub mod output;
