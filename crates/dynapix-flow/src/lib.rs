@@ -20,7 +20,7 @@ pub use flo::{read_flo, write_flo};
 pub use metrics::{FlowErrorStats, flow_error};
 pub use variational::VariationalParams;
 pub use viz::{flow_to_color, flow_to_color_with_max};
-pub use warp::{warp_gray, warp_rgb};
+pub use warp::warp_gray;
 
 /// A dense flow field: for pixel x of image A, `B(x + f(x)) ≈ A(x)`.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,36 +48,6 @@ impl FlowField {
         self.data[y as usize * self.width as usize + x as usize]
     }
 
-    /// Flow vector at pixel (x, y), `None` outside the field.
-    pub fn try_get(&self, x: u32, y: u32) -> Option<[f32; 2]> {
-        if x < self.width && y < self.height {
-            self.data
-                .get(y as usize * self.width as usize + x as usize)
-                .copied()
-        } else {
-            None
-        }
-    }
-
-    /// Builds a field from separate row-major u and v planes (lengths must be `width·height`;
-    /// missing values are taken as 0).
-    pub fn from_planes(width: u32, height: u32, u: &[f32], v: &[f32]) -> Self {
-        let n = width as usize * height as usize;
-        let data = (0..n)
-            .map(|i| {
-                [
-                    u.get(i).copied().unwrap_or(0.0),
-                    v.get(i).copied().unwrap_or(0.0),
-                ]
-            })
-            .collect();
-        Self {
-            width,
-            height,
-            data,
-        }
-    }
-
     /// A field with the same vector at every pixel.
     pub fn constant(width: u32, height: u32, f: [f32; 2]) -> Self {
         Self {
@@ -85,11 +55,6 @@ impl FlowField {
             height,
             data: vec![f; width as usize * height as usize],
         }
-    }
-
-    /// Splits into row-major u and v planes.
-    pub fn to_planes(&self) -> (Vec<f32>, Vec<f32>) {
-        self.data.iter().map(|f| (f[0], f[1])).unzip()
     }
 
     /// Whether every component is finite.
