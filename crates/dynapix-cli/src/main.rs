@@ -1,5 +1,7 @@
 //! `dynapix`: dynamic RGB-D visual SLAM (DynaPix, GCPR 2024) on the CPU.
 
+#![forbid(unsafe_code)]
+
 mod cmd;
 
 use clap::{Parser, Subcommand};

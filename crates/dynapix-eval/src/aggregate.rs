@@ -76,12 +76,6 @@ pub struct MethodSummary {
     pub run_floors_m: Vec<Option<f64>>,
 }
 
-/// Summarises the runs of one method (floors unknown; see [`summarize_with_floors`]).
-pub fn summarize(method: &str, runs: Vec<RunResult>) -> MethodSummary {
-    let floors = vec![None; runs.len()];
-    summarize_with_floors(method, runs, floors)
-}
-
 /// Summarises the runs of one method with the motionless floor of each run (`floors`
 /// parallel to `runs`; missing entries count as unknown).
 pub fn summarize_with_floors(
@@ -367,11 +361,15 @@ mod tests {
     fn average_and_atr_follow_the_paper_definition() {
         let s1 = SequenceSummary {
             sequence: "a".into(),
-            methods: vec![summarize("M", vec![run(0.01, 1.0), run(0.03, 0.8)])],
+            methods: vec![summarize_with_floors(
+                "M",
+                vec![run(0.01, 1.0), run(0.03, 0.8)],
+                vec![],
+            )],
         };
         let s2 = SequenceSummary {
             sequence: "b".into(),
-            methods: vec![summarize("M", vec![run(0.06, 0.5)])],
+            methods: vec![summarize_with_floors("M", vec![run(0.06, 0.5)], vec![])],
         };
         let t = paper_table(vec![s1, s2]);
         let m = &t.sequences[0].methods[0];
@@ -445,12 +443,12 @@ mod tests {
         let json: serde_json::Value = serde_json::from_str(&t.to_json()).expect("json");
         assert_eq!(json["floors_m"][1], 0.004);
         assert_eq!(json["sequences"][0]["methods"][0]["run_floors_m"][1], 0.09);
-        // A missing floor is unknown, not zero; summarize has none.
+        // A missing floor is unknown, not zero; an empty floor list has none.
         let m = summarize_with_floors("M", vec![run(0.01, 1.0), run(0.02, 1.0)], vec![Some(0.1)]);
         assert_eq!(m.run_floors_m, vec![Some(0.1), None]);
         assert_eq!(m.motionless_floor.map(|x| x.n), Some(1));
         assert!(
-            summarize("M", vec![run(0.01, 1.0)])
+            summarize_with_floors("M", vec![run(0.01, 1.0)], vec![])
                 .motionless_floor
                 .is_none()
         );
@@ -461,7 +459,7 @@ mod tests {
         let mut bad = run(0.0, 0.2);
         bad.ate_rmse_m = None;
         bad.error = Some("no pairs".into());
-        let m = summarize("M", vec![run(0.05, 1.0), bad]);
+        let m = summarize_with_floors("M", vec![run(0.05, 1.0), bad], vec![]);
         assert_eq!(m.failed_runs, 1);
         assert_eq!(m.ate.map(|a| a.n), Some(1));
         assert_eq!(m.tracking_rate.map(|a| a.n), Some(2));

@@ -121,17 +121,8 @@ pub struct RunEvaluation {
     pub motionless_floor_m: Option<f64>,
 }
 
-/// Evaluates one trajectory file into a [`RunResult`]; errors are recorded, not returned.
-pub fn evaluate_run_file(
-    gt: &[(f64, Se3)],
-    est_path: &Path,
-    reference: Option<&[f64]>,
-    params: &EvalParams,
-) -> RunResult {
-    evaluate_run(gt, est_path, reference, params).result
-}
-
-/// Like [`evaluate_run_file`], with the motionless floor of the run.
+/// Evaluates one trajectory file into a [`RunEvaluation`] (its [`RunResult`] and the
+/// motionless floor of the run); errors are recorded, not returned.
 pub fn evaluate_run(
     gt: &[(f64, Se3)],
     est_path: &Path,

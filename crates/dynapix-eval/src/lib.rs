@@ -8,6 +8,8 @@
 //! work on in-memory slices `&[(timestamp, camera-to-world pose)]`; [`files`] and [`plot`]
 //! are the thin file layer.
 
+#![forbid(unsafe_code)]
+
 pub mod aggregate;
 pub mod associate;
 pub mod ate;

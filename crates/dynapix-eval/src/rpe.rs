@@ -72,16 +72,7 @@ fn closest_index(v: &[f64], x: f64) -> usize {
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    Some(if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    })
+    dynapix_geometry::stats::median(&mut v)
 }
 
 /// Computes the RPE of `est` against `gt`; both must be sorted by timestamp.

@@ -22,15 +22,7 @@ fn frame() -> Option<image::GrayImage> {
     Some(rgb_to_gray_orbslam(&img.to_rgb8()))
 }
 
-/// CPU time (user + system, all threads) of this process in seconds, from /proc/self/stat;
-/// unlike wall time it is barely affected by other processes on a shared machine.
-fn cpu_seconds() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let rest = &s[s.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
+use dynapix_io::usage::cpu_seconds;
 
 fn bench(c: &mut Criterion) {
     let Some(img) = frame() else {

@@ -42,6 +42,9 @@ pub enum VocabError {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// Writing the vocabulary file failed.
+    #[error(transparent)]
+    Write(#[from] dynapix_io::IoError),
     /// The binary data does not start with the vocabulary magic bytes.
     #[error("not a dynapix vocabulary (bad magic bytes)")]
     BadMagic,

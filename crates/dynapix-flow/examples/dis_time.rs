@@ -6,11 +6,9 @@
 use dynapix_flow::{DisFlow, FlowProvider, Preset};
 use std::time::Instant;
 
+/// Process CPU time (user + system, all threads) in milliseconds, if the OS tells it.
 fn cpu_ms() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let f: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks * 10.0)
+    dynapix_io::usage::cpu_seconds().map(|s| s * 1e3)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -14,14 +14,7 @@ use std::time::Instant;
 
 /// Process CPU time (user + system, all threads) in milliseconds, if the OS tells it.
 fn cpu_ms() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which is in parentheses and may contain spaces).
-    let rest = stat.rsplit_once(')')?.1;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = f.get(11)?.parse().ok()?;
-    let stime: f64 = f.get(12)?.parse().ok()?;
-    // Clock ticks are 100 Hz on Linux (USER_HZ).
-    Some((utime + stime) * 10.0)
+    dynapix_io::usage::cpu_seconds().map(|s| s * 1e3)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

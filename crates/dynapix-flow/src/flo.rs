@@ -3,7 +3,6 @@
 //! `width·height` pairs (u, v) of 32-bit floats, row-major, all little-endian.
 
 use crate::{FlowError, FlowField};
-use std::io::Write;
 use std::path::Path;
 
 /// The magic number of `.flo` files.
@@ -81,13 +80,9 @@ pub fn encode_flo(flow: &FlowField) -> Vec<u8> {
     out
 }
 
-/// Writes a `.flo` file atomically (a `.tmp` file in the same folder, then a rename).
+/// Writes a `.flo` file atomically ([`dynapix_io::write_atomic`]).
 pub fn write_flo(path: impl AsRef<Path>, flow: &FlowField) -> Result<(), FlowError> {
     let path = path.as_ref();
-    let io_err = |source| FlowError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
     if flow.data.len() != flow.width as usize * flow.height as usize {
         return Err(FlowError::BadFile {
             path: path.to_path_buf(),
@@ -99,19 +94,8 @@ pub fn write_flo(path: impl AsRef<Path>, flow: &FlowField) -> Result<(), FlowErr
             ),
         });
     }
-    let mut tmp_name = path.as_os_str().to_owned();
-    tmp_name.push(".tmp");
-    let tmp = std::path::PathBuf::from(tmp_name);
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&encode_flo(flow))?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io_err)
+    dynapix_io::write_atomic(path, &encode_flo(flow))?;
+    Ok(())
 }
 
 #[cfg(test)]

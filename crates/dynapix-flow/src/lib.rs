@@ -1,7 +1,7 @@
 //! Dense optical flow for dynapix: the [`FlowField`] type, the [`FlowProvider`] trait that
 //! lets other flow sources plug in, the built-in DIS implementation (Kroeger et al.,
-//! ECCV 2016) in [`dis`], Middlebury `.flo` files ([`flo`]) and a provider reading
-//! precomputed flows ([`precomputed`]), the Middlebury colour-wheel picture ([`viz`]),
+//! ECCV 2016) in [`dis`], Middlebury `.flo` files ([`flo`]), the Middlebury colour-wheel
+//! picture ([`viz`]),
 //! backward warping ([`warp`]) and end-point-error statistics ([`metrics`]).
 
 use image::GrayImage;
@@ -11,7 +11,6 @@ pub mod flo;
 pub mod metrics;
 pub mod pairs;
 pub mod plane;
-pub mod precomputed;
 pub mod variational;
 pub mod viz;
 pub mod warp;
@@ -19,10 +18,9 @@ pub mod warp;
 pub use dis::{DisFlow, DisParams, Preset};
 pub use flo::{read_flo, write_flo};
 pub use metrics::{FlowErrorStats, flow_error};
-pub use precomputed::PrecomputedFlow;
 pub use variational::VariationalParams;
 pub use viz::{flow_to_color, flow_to_color_with_max};
-pub use warp::{warp_gray, warp_rgb};
+pub use warp::warp_gray;
 
 /// A dense flow field: for pixel x of image A, `B(x + f(x)) ≈ A(x)`.
 #[derive(Clone, Debug, PartialEq)]
@@ -50,36 +48,6 @@ impl FlowField {
         self.data[y as usize * self.width as usize + x as usize]
     }
 
-    /// Flow vector at pixel (x, y), `None` outside the field.
-    pub fn try_get(&self, x: u32, y: u32) -> Option<[f32; 2]> {
-        if x < self.width && y < self.height {
-            self.data
-                .get(y as usize * self.width as usize + x as usize)
-                .copied()
-        } else {
-            None
-        }
-    }
-
-    /// Builds a field from separate row-major u and v planes (lengths must be `width·height`;
-    /// missing values are taken as 0).
-    pub fn from_planes(width: u32, height: u32, u: &[f32], v: &[f32]) -> Self {
-        let n = width as usize * height as usize;
-        let data = (0..n)
-            .map(|i| {
-                [
-                    u.get(i).copied().unwrap_or(0.0),
-                    v.get(i).copied().unwrap_or(0.0),
-                ]
-            })
-            .collect();
-        Self {
-            width,
-            height,
-            data,
-        }
-    }
-
     /// A field with the same vector at every pixel.
     pub fn constant(width: u32, height: u32, f: [f32; 2]) -> Self {
         Self {
@@ -87,11 +55,6 @@ impl FlowField {
             height,
             data: vec![f; width as usize * height as usize],
         }
-    }
-
-    /// Splits into row-major u and v planes.
-    pub fn to_planes(&self) -> (Vec<f32>, Vec<f32>) {
-        self.data.iter().map(|f| (f[0], f[1])).unzip()
     }
 
     /// Whether every component is finite.
@@ -129,34 +92,16 @@ pub enum FlowError {
         /// What is wrong.
         reason: String,
     },
+    /// Writing a flow file failed.
+    #[error(transparent)]
+    Write(#[from] dynapix_io::IoError),
     /// Any other failure, with a message.
     #[error("{0}")]
     Other(String),
 }
 
-/// Names of the two frames of a flow request, for providers that look flows up (files).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FramePair<'a> {
-    /// Name of frame A (e.g. its timestamp or file stem).
-    pub a: &'a str,
-    /// Name of frame B.
-    pub b: &'a str,
-}
-
-/// A source of dense optical flow between two grey images (DIS, precomputed files, …).
+/// A source of dense optical flow between two grey images (DIS, …).
 pub trait FlowProvider: Send + Sync {
     /// Flow from `a` to `b`: `b(x + f(x)) ≈ a(x)`.
     fn flow(&self, a: &GrayImage, b: &GrayImage) -> Result<FlowField, FlowError>;
-
-    /// Flow from `a` to `b` when the caller can also name the frames. Providers that compute
-    /// flow ignore the names (the default); [`PrecomputedFlow`] uses them to find its file.
-    fn flow_named(
-        &self,
-        a: &GrayImage,
-        b: &GrayImage,
-        names: FramePair<'_>,
-    ) -> Result<FlowField, FlowError> {
-        let _ = names;
-        self.flow(a, b)
-    }
 }

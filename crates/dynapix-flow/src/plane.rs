@@ -64,14 +64,6 @@ impl Plane {
         }
     }
 
-    /// Value at (x, y) with coordinates clamped to the image (replicated border).
-    #[inline]
-    pub fn at_clamped(&self, x: isize, y: isize) -> f32 {
-        let xc = x.clamp(0, self.w as isize - 1) as usize;
-        let yc = y.clamp(0, self.h as isize - 1) as usize;
-        self.data[yc * self.w + xc]
-    }
-
     /// Bilinear sample at real coordinates (pixel centres at integers), replicated border.
     #[inline(always)]
     pub fn bilinear(&self, x: f32, y: f32) -> f32 {

@@ -4,7 +4,7 @@
 
 use crate::plane::Plane;
 use crate::{FlowError, FlowField};
-use image::{GrayImage, RgbImage};
+use image::GrayImage;
 use rayon::prelude::*;
 
 fn check(w: u32, h: u32, flow: &FlowField) -> Result<(), FlowError> {
@@ -46,25 +46,6 @@ pub fn warp_gray(src: &GrayImage, flow: &FlowField) -> Result<GrayImage, FlowErr
         .ok_or_else(|| FlowError::Other("warped image buffer has the wrong size".into()))
 }
 
-/// Warps a colour image channel by channel.
-pub fn warp_rgb(src: &RgbImage, flow: &FlowField) -> Result<RgbImage, FlowError> {
-    let (w, h) = src.dimensions();
-    check(w, h, flow)?;
-    let mut out = RgbImage::new(w, h);
-    for c in 0..3 {
-        let plane = Plane {
-            w: w as usize,
-            h: h as usize,
-            data: src.pixels().map(|p| f32::from(p.0[c])).collect(),
-        };
-        let warped = warp_plane_by(&plane, flow)?;
-        for (px, v) in out.pixels_mut().zip(&warped.data) {
-            px.0[c] = v.round().clamp(0.0, 255.0) as u8;
-        }
-    }
-    Ok(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -77,9 +58,6 @@ mod tests {
         assert_eq!(out.get_pixel(2, 1).0[0], img.get_pixel(3, 2).0[0]);
         // Replicated border at the far edge.
         assert_eq!(out.get_pixel(5, 3).0[0], img.get_pixel(5, 3).0[0]);
-        let rgb = RgbImage::from_fn(6, 4, |x, _| image::Rgb([x as u8, 0, 255]));
-        let o = warp_rgb(&rgb, &flow).unwrap();
-        assert_eq!(o.get_pixel(2, 1).0, [3, 0, 255]);
         assert!(warp_gray(&img, &FlowField::zeros(5, 4)).is_err());
     }
 }

@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use dynapix_geometry::Se3;
-use dynapix_io::images::{self, ProbMap};
+use dynapix_io::images::ProbMap;
+use dynapix_io::weights;
 use dynapix_io::{Sequence, StampedPose, Trajectory, associate};
 use image::Luma;
 use nalgebra::Vector3;
@@ -81,16 +82,16 @@ fn bench_frames(c: &mut Criterion) {
     let png = tmp.path().join("p.png");
     let pfm = tmp.path().join("p.pfm");
     c.bench_function("write_prob_png_640x480", |b| {
-        b.iter(|| images::write_prob_png(&png, &prob).unwrap())
+        b.iter(|| weights::write_prob_png(&png, &prob).unwrap())
     });
     c.bench_function("write_prob_pfm_640x480", |b| {
-        b.iter(|| images::write_prob_pfm(&pfm, &prob).unwrap())
+        b.iter(|| weights::write_prob_pfm(&pfm, &prob).unwrap())
     });
     c.bench_function("read_prob_png_640x480", |b| {
-        b.iter(|| images::read_prob_png(&png).unwrap())
+        b.iter(|| weights::read_prob_png(&png).unwrap())
     });
     c.bench_function("read_prob_pfm_640x480", |b| {
-        b.iter(|| images::read_prob_pfm(&pfm).unwrap())
+        b.iter(|| weights::read_prob_pfm(&pfm).unwrap())
     });
 }
 

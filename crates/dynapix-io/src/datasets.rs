@@ -11,7 +11,13 @@
 
 use std::path::Path;
 
-use crate::sequence::ASSOCIATION_FILES;
+/// Association file names looked for, in this order (TUM tools, DynaSLAM, DynaPix, GRADE).
+pub const ASSOCIATION_FILES: [&str; 4] = [
+    "association.txt",
+    "associations.txt",
+    "rgbd_assoc.txt",
+    "assoc.txt",
+];
 
 /// Folder-name prefix of the TUM RGB-D sequences (`rgbd_dataset_freiburg1_xyz`, …).
 pub const TUM_PREFIX: &str = "rgbd_dataset_freiburg";

@@ -111,11 +111,6 @@ impl GroundTruthConvention {
         }
     }
 
-    /// The convention of the `groundtruth.txt` in a sequence folder.
-    pub fn of_sequence_dir(dir: &Path) -> Self {
-        Self::of_file(&dir.join(GROUNDTRUTH_FILE))
-    }
-
     /// True when the poses are not camera poses and need [`Self::to_camera`].
     pub fn needs_conversion(self) -> bool {
         self != Self::Camera
@@ -305,7 +300,7 @@ mod tests {
             std::fs::write(d.join(GROUNDTRUTH_FILE), line).unwrap();
         }
         std::fs::write(bonn.join("camera_poses.txt"), line).unwrap();
-        let conv = GroundTruthConvention::of_sequence_dir;
+        let conv = |d: &Path| GroundTruthConvention::of_file(&d.join(GROUNDTRUTH_FILE));
         assert_eq!(conv(&bonn), GroundTruthConvention::BonnMarker);
         assert_eq!(conv(&tum), GroundTruthConvention::Camera);
         assert_eq!(conv(&mine), GroundTruthConvention::Camera);

@@ -1,21 +1,18 @@
 //! Image files: 8-bit colour PNG/JPEG, 16-bit depth PNG (converted to metres), 8-bit masks,
-//! motion-probability maps, and PFM for lossless float maps (spec §1.8, §2.1, §5).
+//! and PFM for lossless float maps (spec §2.1, §5). Motion-probability files are read and
+//! written by [`crate::weights`], on top of these.
 //!
-//! Probability maps in the reference format are 16-bit single-channel PNGs storing the
-//! static weight `trunc((1 − P)·1000)` (computed in `f32` like the reference's float arrays),
-//! named like the rgb image under `prob/` ([`prob_png_path`]). The lossless variant stores P
-//! itself as a greyscale PFM ([`prob_pfm_path`], [`write_pfm`]): a tiny standard format
-//! (`Pf\n<w> <h>\n<scale>\n` then little-endian `f32` rows from bottom to top when scale < 0)
-//! read by OpenCV, numpy scripts and most image tools.
+//! PFM ([`write_pfm`], [`read_pfm`]) is a tiny standard format (`Pf\n<w> <h>\n<scale>\n`
+//! then little-endian `f32` rows from bottom to top when scale < 0) read by OpenCV, numpy
+//! scripts and most image tools.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+use image::codecs::png::PngEncoder;
 use image::{DynamicImage, GrayImage, ImageBuffer, Luma, RgbImage};
 
 use crate::atomic::{write_atomic, write_atomic_with};
 use crate::error::{IoError, Result};
-use crate::weights::{MotionProbability, StaticWeights};
 
 /// A depth map in metres; 0 means "no depth".
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -23,9 +20,6 @@ pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 pub type ProbMap = ImageBuffer<Luma<f32>, Vec<f32>>;
 /// A raw 16-bit single-channel image (depth in sensor units, stored probability weights).
 pub type Gray16Image = ImageBuffer<Luma<u16>, Vec<u16>>;
-
-/// Scale of the stored probability weight: `stored = trunc((1 − P)·1000)`.
-pub const PROB_PNG_SCALE: f32 = 1000.0;
 
 /// Opens `path` for decoding with its format told by its content (the magic bytes), not by
 /// its name: a JPEG file named `.png` decodes, and a file that is no image fails the same way
@@ -72,11 +66,11 @@ pub fn image_size(path: impl AsRef<Path>) -> Result<(u32, u32)> {
         .map_err(|e| image_error(path, e))
 }
 
-fn decode(path: &Path) -> Result<DynamicImage> {
+pub(crate) fn decode(path: &Path) -> Result<DynamicImage> {
     decode_image(path)
 }
 
-fn describe(img: &DynamicImage) -> String {
+pub(crate) fn describe(img: &DynamicImage) -> String {
     format!("{:?}", img.color())
 }
 
@@ -265,109 +259,6 @@ pub fn write_mask(path: impl AsRef<Path>, mask: &GrayImage) -> Result<()> {
     write_png(path.as_ref(), mask)
 }
 
-/// Reads a reference probability PNG without conversion: the stored static weight
-/// `trunc((1 − P)·1000)` ∈ [0, 1000], as the reference SLAM consumes it (w = stored/1000).
-pub fn read_prob_png_raw(path: impl AsRef<Path>) -> Result<Gray16Image> {
-    let path = path.as_ref();
-    let img = match decode(path)? {
-        DynamicImage::ImageLuma16(img) => img,
-        other => {
-            return Err(IoError::invalid(
-                path,
-                format!(
-                    "expected a 16-bit single-channel probability map, got {}",
-                    describe(&other)
-                ),
-            ));
-        }
-    };
-    if img.as_raw().iter().any(|&v| v > 1000)
-        && let Some((x, y, p)) = img.enumerate_pixels().find(|(_, _, p)| p[0] > 1000)
-    {
-        return Err(IoError::invalid(
-            path,
-            format!("pixel ({x}, {y}) stores {} > 1000", p[0]),
-        ));
-    }
-    Ok(img)
-}
-
-/// Reads a reference probability PNG as P = 1 − stored/1000 (see [`read_prob_png_raw`]).
-pub fn read_prob_png(path: impl AsRef<Path>) -> Result<ProbMap> {
-    Ok(read_motion_probability(path)?.into_image())
-}
-
-/// Reads a reference probability PNG as a typed [`MotionProbability`].
-pub fn read_motion_probability(path: impl AsRef<Path>) -> Result<MotionProbability> {
-    Ok(MotionProbability::from_stored(&read_prob_png_raw(path)?))
-}
-
-/// Reads a reference probability PNG as the [`StaticWeights`] the SLAM backend uses
-/// (w = stored/1000, as the reference reads it).
-pub fn read_static_weights(path: impl AsRef<Path>) -> Result<StaticWeights> {
-    Ok(StaticWeights::from_stored(&read_prob_png_raw(path)?))
-}
-
-/// Quantises P like the reference: `trunc((1 − P)·1000)` in `f32`, P clamped to [0, 1].
-/// Stored 1000 ⇔ P == 0; P = 0.1 → 900, P = 0.1000001 → 899; stored 0 for P ≳ 0.999
-/// (in `f32`, P = 0.999 already gives 0). The codec is [`MotionProbability::to_stored`].
-pub fn prob_to_stored(prob: &ProbMap) -> Gray16Image {
-    crate::weights::stored_image(prob)
-}
-
-/// Writes P as a reference probability PNG (see [`prob_to_stored`]), atomically.
-/// A NaN probability is an error.
-pub fn write_prob_png(path: impl AsRef<Path>, prob: &ProbMap) -> Result<()> {
-    let path = path.as_ref();
-    check_finite(path, prob)?;
-    write_gray16(path, &prob_to_stored(prob))
-}
-
-/// Writes a typed motion probability as a reference probability PNG, atomically (a NaN
-/// probability is an error).
-pub fn write_motion_probability(path: impl AsRef<Path>, prob: &MotionProbability) -> Result<()> {
-    let path = path.as_ref();
-    check_finite(path, prob.as_image())?;
-    // Maps are written once per pass and read back at once: fast compression with the `Up`
-    // row filter (lossless like any PNG). On a 640×480 map against the encoder's defaults:
-    // write 2.3 → 2.0 ms, read 1.3 → 0.4 ms, 25 → 35 KB (no filter: 540 KB and slower).
-    let stored = prob.to_stored();
-    write_atomic_with(path, |w| {
-        stored
-            .write_with_encoder(PngEncoder::new_with_quality(
-                w,
-                CompressionType::Fast,
-                FilterType::Up,
-            ))
-            .map_err(std::io::Error::other)
-    })
-}
-
-fn check_finite(path: &Path, map: &ImageBuffer<Luma<f32>, Vec<f32>>) -> Result<()> {
-    if !map.as_raw().iter().any(|p| p.is_nan()) {
-        return Ok(());
-    }
-    match map.enumerate_pixels().find(|(_, _, p)| p[0].is_nan()) {
-        Some((x, y, _)) => Err(IoError::invalid(
-            path,
-            format!("refusing to write: pixel ({x}, {y}) is NaN"),
-        )),
-        None => Ok(()),
-    }
-}
-
-/// Where the reference SLAM looks for the probability map of an rgb image:
-/// `<sequence>/prob/<rgb file name>` (e.g. `prob/1341846434.710184.png`, `prob/12.png`).
-pub fn prob_png_path(seq_dir: &Path, rgb_path: &Path) -> PathBuf {
-    let name = rgb_path.file_name().unwrap_or(rgb_path.as_os_str());
-    seq_dir.join("prob").join(name)
-}
-
-/// Path of the lossless probability map: `<sequence>/prob/<rgb file stem>.pfm`.
-pub fn prob_pfm_path(seq_dir: &Path, rgb_path: &Path) -> PathBuf {
-    prob_png_path(seq_dir, rgb_path).with_extension("pfm")
-}
-
 /// Writes a single-channel float map as greyscale PFM (little-endian), atomically. Lossless.
 pub fn write_pfm(path: impl AsRef<Path>, map: &ImageBuffer<Luma<f32>, Vec<f32>>) -> Result<()> {
     let (w, h) = map.dimensions();
@@ -444,29 +335,6 @@ pub fn read_pfm(path: impl AsRef<Path>) -> Result<ImageBuffer<Luma<f32>, Vec<f32
         out.put_pixel(x, h - 1 - row, Luma([v]));
     }
     Ok(out)
-}
-
-/// Writes P losslessly as PFM (see [`write_pfm`]); NaN is an error.
-pub fn write_prob_pfm(path: impl AsRef<Path>, prob: &ProbMap) -> Result<()> {
-    let path = path.as_ref();
-    check_finite(path, prob)?;
-    write_pfm(path, prob)
-}
-
-/// Reads a lossless probability map written by [`write_prob_pfm`]; values must lie in [0, 1].
-pub fn read_prob_pfm(path: impl AsRef<Path>) -> Result<ProbMap> {
-    let path = path.as_ref();
-    let map = read_pfm(path)?;
-    if let Some((x, y, p)) = map
-        .enumerate_pixels()
-        .find(|(_, _, p)| !(0.0..=1.0).contains(&p[0]))
-    {
-        return Err(IoError::invalid(
-            path,
-            format!("pixel ({x}, {y}) has probability {} outside [0, 1]", p[0]),
-        ));
-    }
-    Ok(map)
 }
 
 #[cfg(test)]
@@ -573,77 +441,6 @@ mod tests {
         let d16 = dir.path().join("d16.png");
         write_gray16(&d16, &Gray16Image::new(4, 4)).unwrap();
         assert!(read_gray(&d16).unwrap_err().to_string().contains("8-bit"));
-    }
-
-    #[test]
-    fn prob_png_quantisation_matches_the_reference() {
-        // In f32, 1 − 0.998 = 0.0019999743, so 0.998 stores 1 (truncation, as in numpy).
-        let ps = [0.0f32, 0.1, 0.1000001, 0.5, 0.998, 0.9991, 1.0, -0.5, 1.5];
-        let prob = ProbMap::from_fn(ps.len() as u32, 1, |x, _| Luma([ps[x as usize]]));
-        let stored: Vec<u16> = prob_to_stored(&prob).pixels().map(|p| p[0]).collect();
-        assert_eq!(stored, vec![1000, 900, 899, 500, 1, 0, 0, 1000, 0]);
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("1.png");
-        write_prob_png(&p, &prob).unwrap();
-        let back = read_prob_png(&p).unwrap();
-        assert_eq!(back.get_pixel(0, 0)[0], 0.0);
-        assert!((back.get_pixel(3, 0)[0] - 0.5).abs() < 1e-6);
-        assert_eq!(back.get_pixel(6, 0)[0], 1.0);
-        let nan = ProbMap::from_pixel(2, 2, Luma([f32::NAN]));
-        let e = write_prob_png(&p, &nan).unwrap_err().to_string();
-        assert!(e.contains("NaN"), "{e}");
-        write_gray16(&p, &Gray16Image::from_pixel(2, 2, Luma([1001]))).unwrap();
-        let e = read_prob_png(&p).unwrap_err().to_string();
-        assert!(e.contains("1.png") && e.contains("1001"), "{e}");
-    }
-
-    #[test]
-    fn prob_paths_follow_the_rgb_name() {
-        let seq = Path::new("/seq");
-        assert_eq!(
-            prob_png_path(seq, Path::new("rgb/1341846434.710184.png")),
-            Path::new("/seq/prob/1341846434.710184.png")
-        );
-        assert_eq!(
-            prob_pfm_path(seq, Path::new("/seq/rgb/12.png")),
-            Path::new("/seq/prob/12.pfm")
-        );
-    }
-
-    #[test]
-    fn pfm_is_lossless_and_bad_pfm_is_an_error() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("p.pfm");
-        let prob = ProbMap::from_fn(5, 3, |x, y| Luma([(x * 3 + y) as f32 / 15.0 + 1e-7]));
-        write_prob_pfm(&p, &prob).unwrap();
-        assert_eq!(read_prob_pfm(&p).unwrap(), prob);
-        let bytes = std::fs::read(&p).unwrap();
-        assert!(bytes.starts_with(b"Pf\n5 3\n-1.0\n"));
-        // First stored row is the bottom image row.
-        let first = f32::from_le_bytes(bytes[12..16].try_into().unwrap());
-        assert_eq!(first, prob.get_pixel(0, 2)[0]);
-        std::fs::write(&p, &bytes[..bytes.len() - 1]).unwrap();
-        let e = read_pfm(&p).unwrap_err().to_string();
-        assert!(e.contains("p.pfm") && e.contains("data bytes"), "{e}");
-        for bad in [
-            &b"PF\n1 1\n-1\n"[..],
-            b"Pf\n1\n-1\n",
-            b"Pf\n1 1\n0\n",
-            b"Pf",
-            b"",
-        ] {
-            std::fs::write(&p, bad).unwrap();
-            let e = read_pfm(&p).unwrap_err().to_string();
-            assert!(e.contains("p.pfm"), "{e}");
-        }
-        let big = ProbMap::from_pixel(1, 1, Luma([2.0]));
-        write_pfm(&p, &big).unwrap();
-        assert!(
-            read_prob_pfm(&p)
-                .unwrap_err()
-                .to_string()
-                .contains("outside")
-        );
     }
 
     #[test]

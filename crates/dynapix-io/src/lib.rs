@@ -7,23 +7,24 @@
 //!   per-frame status file ([`FrameStatus`]).
 //! - [`tum`]: `rgb.txt`/`depth.txt` lists, [`associate`] (exactly like `associate.py`),
 //!   4-column association files.
-//! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
-//!   lossless PFM).
+//! - [`images`]: rgb, depth (metres), masks, PFM float maps.
 //! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade bonn`, the camera
 //!   of a sequence folder.
 //! - [`datasets`]: which public dataset a folder is (TUM `rgbd_dataset_freiburgN_*`, Bonn
-//!   `rgbd_bonn_*`), which decides its camera preset and ground-truth convention.
+//!   `rgbd_bonn_*`), which decides its camera preset and ground-truth convention, and the
+//!   association-file names looked for in a sequence folder.
 //! - [`ground_truth`]: ground truth as camera poses ([`camera_trajectory`]; the Bonn marker
 //!   poses converted), or the raw file ([`GtFrame`]).
-//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, [`FrameData`],
-//!   and [`SequenceWriter`] for the DynaPix layout.
+//! - [`sequence`]: [`Sequence`] over the TUM, DynaPix and GRADE layouts, and [`FrameData`].
 //! - [`weights`]: [`MotionProbability`] P and [`StaticWeights`] w = 1 − P as distinct types,
-//!   with the one 16-bit codec of the reference `prob/*.png` files.
+//!   with the one 16-bit codec of the reference `prob/*.png` files, and the probability
+//!   files (reference PNG, lossless PFM).
 //! - [`atomic`]: [`write_atomic`] (temporary file + rename) for any other writer.
 //! - [`output`]: [`OutputFolder`], a command's result set written beside its output folder
 //!   and swapped in as a whole.
+//! - [`usage`]: CPU time and peak memory of this process (for benchmarks).
 
-#![warn(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod atomic;
 pub mod datasets;
@@ -38,6 +39,7 @@ mod testutil;
 mod text;
 pub mod trajectory;
 pub mod tum;
+pub mod usage;
 pub mod weights;
 
 pub use atomic::write_atomic;
@@ -48,9 +50,7 @@ pub use ground_truth::{
 };
 pub use images::{DepthImage, Gray16Image, ProbMap};
 pub use output::OutputFolder;
-pub use sequence::{
-    FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions, SequenceWriter,
-};
+pub use sequence::{FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};

@@ -26,20 +26,14 @@ use std::path::{Path, PathBuf};
 use dynapix_geometry::Se3;
 use image::{GrayImage, RgbImage};
 
+use crate::datasets::ASSOCIATION_FILES;
 use crate::error::{IoError, Result};
 use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame};
 use crate::images::{self, DepthImage, ProbMap};
 use crate::settings::{SEQUENCE_SETTINGS_FILE, Settings};
 use crate::trajectory::{DEFAULT_MAX_GAP, Trajectory};
-use crate::tum::{self, Association, DEFAULT_MAX_DIFF};
-
-/// Association file names looked for, in this order (TUM tools, DynaSLAM, DynaPix, GRADE).
-pub const ASSOCIATION_FILES: [&str; 4] = [
-    "association.txt",
-    "associations.txt",
-    "rgbd_assoc.txt",
-    "assoc.txt",
-];
+use crate::tum::{self, DEFAULT_MAX_DIFF};
+use crate::weights;
 
 /// Frame rate of GRADE sequences, which gives t = (i − 1)/30 for frame i.
 pub const GRADE_FPS: f64 = 30.0;
@@ -47,9 +41,6 @@ pub const GRADE_FPS: f64 = 30.0;
 /// Depth units per metre when neither `camera.yaml` nor the folder name tells it: TUM
 /// (0.2 mm units).
 pub const TUM_DEPTH_FACTOR: f64 = 5000.0;
-
-/// Depth units per metre of GRADE (millimetres).
-pub const GRADE_DEPTH_FACTOR: f64 = 1000.0;
 
 /// The folder layout a sequence was recognised as.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -458,37 +449,6 @@ impl Sequence {
         self.groundtruth.as_ref()?.interpolate(t, self.gt_max_gap)
     }
 
-    /// Where the reference probability PNG of frame `i` goes: `<prob_dir>/<rgb file name>`.
-    pub fn prob_png_path(&self, i: usize) -> Option<PathBuf> {
-        Some(prob_paths(&self.prob_dir, &self.frames.get(i)?.rgb).0)
-    }
-
-    /// Where the lossless probability map of frame `i` goes: `<prob_dir>/<rgb stem>.pfm`.
-    pub fn prob_pfm_path(&self, i: usize) -> Option<PathBuf> {
-        Some(prob_paths(&self.prob_dir, &self.frames.get(i)?.rgb).1)
-    }
-
-    /// Writes the probability map of frame `i` in both formats (reference PNG and lossless
-    /// PFM), creating the probability folder if needed. The frame list of `self` is not
-    /// updated: open the sequence again to load the new maps.
-    pub fn write_prob(&self, i: usize, prob: &ProbMap) -> Result<()> {
-        let (png, pfm) = match self.frames.get(i) {
-            Some(f) => prob_paths(&self.prob_dir, &f.rgb),
-            None => {
-                return Err(IoError::invalid(
-                    &self.dir,
-                    format!(
-                        "frame {i} out of range (sequence has {})",
-                        self.frames.len()
-                    ),
-                ));
-            }
-        };
-        std::fs::create_dir_all(&self.prob_dir).map_err(|e| IoError::io(&self.prob_dir, e))?;
-        images::write_prob_png(png, prob)?;
-        images::write_prob_pfm(pfm, prob)
-    }
-
     /// Loads frame `i`: images (depth in metres), optional maps and the interpolated
     /// ground-truth pose. Every image must have the rgb image's size.
     pub fn load_frame(&self, i: usize) -> Result<FrameData> {
@@ -525,9 +485,9 @@ impl Sequence {
         let prob = match &info.prob {
             Some(p) => {
                 let img = if p.extension().is_some_and(|e| e == "pfm") {
-                    images::read_prob_pfm(p)?
+                    weights::read_prob_pfm(p)?
                 } else {
-                    images::read_prob_png(p)?
+                    weights::read_prob_png(p)?
                 };
                 same(p, img.dimensions())?;
                 Some(img)
@@ -548,114 +508,11 @@ impl Sequence {
     }
 }
 
-/// Writes a sequence in the DynaPix layout, readable by [`Sequence::open`]: `camera.yaml`,
-/// `rgb/`, `depth/` and, per frame, whichever of `background/`, `depth_bg/`, `mask/`, `prob/`
-/// the frame carries; files are named `<t with 6 decimals>.png` like TUM (probability maps
-/// in both the reference PNG and the lossless PFM), then `association.txt` and
-/// `groundtruth.txt` by [`SequenceWriter::finish`]. Every file is written atomically.
-#[derive(Clone, Debug)]
-pub struct SequenceWriter {
-    dir: PathBuf,
-    depth_factor: f64,
-}
-
-impl SequenceWriter {
-    /// Creates `dir` with `rgb/` and `depth/`, and writes `camera.yaml` from `settings`
-    /// (whose `DepthMapFactor` scales the depth images).
-    pub fn create(dir: impl AsRef<Path>, settings: &Settings) -> Result<Self> {
-        let dir = dir.as_ref().to_path_buf();
-        for sub in ["rgb", "depth"] {
-            let d = dir.join(sub);
-            std::fs::create_dir_all(&d).map_err(|e| IoError::io(&d, e))?;
-        }
-        settings.write(dir.join(SEQUENCE_SETTINGS_FILE))?;
-        Ok(Self {
-            dir,
-            depth_factor: settings.depth_map_factor,
-        })
-    }
-
-    /// The sequence folder.
-    pub fn dir(&self) -> &Path {
-        &self.dir
-    }
-
-    /// File name of the frame at time `t`: `<t with 6 decimals>.png`, like TUM.
-    pub fn frame_file_name(t: f64) -> String {
-        format!("{t:.6}.png")
-    }
-
-    fn sub_path(&self, sub: &str, name: &str) -> Result<PathBuf> {
-        let d = self.dir.join(sub);
-        std::fs::create_dir_all(&d).map_err(|e| IoError::io(&d, e))?;
-        Ok(d.join(name))
-    }
-
-    /// Writes the images of one frame (`gt_pose` and `index` are not stored here) and
-    /// returns its association line for [`SequenceWriter::finish`]. Takes `&self`, so frames
-    /// can be written in parallel. Every map must have the rgb image's size.
-    pub fn write_frame(&self, frame: &FrameData) -> Result<Association> {
-        let name = Self::frame_file_name(frame.t);
-        let rgb_path = self.dir.join("rgb").join(&name);
-        let size = frame.rgb.dimensions();
-        let same = |p: &Path, s: (u32, u32)| images::check_same_size(p, s, &rgb_path, size);
-        let depth_path = self.dir.join("depth").join(&name);
-        same(&depth_path, frame.depth.dimensions())?;
-        images::write_rgb(&rgb_path, &frame.rgb)?;
-        images::write_depth(&depth_path, &frame.depth, self.depth_factor)?;
-        if let Some(bg) = &frame.background {
-            let p = self.sub_path("background", &name)?;
-            same(&p, bg.dimensions())?;
-            images::write_rgb(p, bg)?;
-        }
-        if let Some(d) = &frame.depth_bg {
-            let p = self.sub_path("depth_bg", &name)?;
-            same(&p, d.dimensions())?;
-            images::write_depth(p, d, self.depth_factor)?;
-        }
-        if let Some(m) = &frame.mask {
-            let p = self.sub_path("mask", &name)?;
-            same(&p, m.dimensions())?;
-            images::write_mask(p, m)?;
-        }
-        if let Some(prob) = &frame.prob {
-            let png = self.sub_path("prob", &name)?;
-            same(&png, prob.dimensions())?;
-            images::write_prob_png(&png, prob)?;
-            images::write_prob_pfm(png.with_extension("pfm"), prob)?;
-        }
-        Ok(Association {
-            t_rgb: frame.t,
-            rgb: format!("rgb/{name}"),
-            t_depth: frame.t,
-            depth: format!("depth/{name}"),
-        })
-    }
-
-    /// Writes `association.txt` (lines sorted by time; two frames with the same 6-decimal
-    /// timestamp are an error) and, when given, `groundtruth.txt`.
-    pub fn finish(&self, frames: &[Association], groundtruth: Option<&Trajectory>) -> Result<()> {
-        let path = self.dir.join(ASSOCIATION_FILES[0]);
-        let mut sorted = frames.to_vec();
-        sorted.sort_by(|a, b| a.t_rgb.total_cmp(&b.t_rgb));
-        if let Some(w) = sorted.windows(2).find(|w| w[0].rgb == w[1].rgb) {
-            return Err(IoError::invalid(
-                &path,
-                format!("two frames share the file name {}", w[0].rgb),
-            ));
-        }
-        tum::write_associations(&path, &sorted)?;
-        if let Some(gt) = groundtruth {
-            gt.write_tum(self.dir.join("groundtruth.txt"))?;
-        }
-        Ok(())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::trajectory::StampedPose;
+    use crate::tum::Association;
     use image::{Luma, Rgb};
     use nalgebra::Vector3;
 
@@ -696,9 +553,10 @@ mod tests {
             }
             let p = ProbMap::from_pixel(8, 6, Luma([0.25 * k as f32]));
             if k == 2 {
-                images::write_prob_pfm(images::prob_pfm_path(dir, Path::new(&rn)), &p).unwrap();
+                let pfm = dir.join("prob").join(&rn).with_extension("pfm");
+                weights::write_prob_pfm(pfm, &p).unwrap();
             } else {
-                images::write_prob_png(images::prob_png_path(dir, Path::new(&rn)), &p).unwrap();
+                weights::write_prob_png(dir.join("prob").join(&rn), &p).unwrap();
             }
             assoc.push(Association {
                 t_rgb: t,
@@ -759,8 +617,8 @@ mod tests {
         let e = seq.load_frame(3).unwrap_err().to_string();
         assert!(e.contains("out of range"), "{e}");
         assert_eq!(
-            seq.prob_png_path(0).unwrap(),
-            dir.join("prob").join("100.000000.png")
+            seq.frames[0].prob.as_deref(),
+            Some(dir.join("prob").join("100.000000.png").as_path())
         );
     }
 
@@ -833,7 +691,7 @@ mod tests {
             seq.timestamps(),
             vec![0.0, 1.0 / 30.0, 2.0 / 30.0, 3.0 / 30.0]
         );
-        assert_eq!(seq.depth_factor, GRADE_DEPTH_FACTOR);
+        assert_eq!(seq.depth_factor, 1000.0);
         assert_eq!(seq.settings().unwrap(), &Settings::grade());
         let f = seq.load_frame(1).unwrap();
         assert!((f.depth.get_pixel(0, 0)[0] - 1.502).abs() < 1e-6);
@@ -1012,6 +870,7 @@ mod tests {
 mod writer_tests {
     use super::*;
     use crate::trajectory::StampedPose;
+    use crate::tum::Association;
     use image::{Luma, Rgb};
 
     fn frame(k: usize) -> FrameData {
@@ -1033,18 +892,54 @@ mod writer_tests {
         }
     }
 
+    /// Writes `frames` as a DynaPix-layout folder (what `dynapix synth` produces): `camera.yaml`,
+    /// `rgb/`, `depth/`, the optional per-frame folders (probability maps in both formats),
+    /// `association.txt` and, when given, `groundtruth.txt`.
+    fn write_dynapix_sequence(dir: &Path, frames: &[FrameData], gt: Option<&Trajectory>) {
+        let settings = Settings::tum3();
+        settings.write(dir.join(SEQUENCE_SETTINGS_FILE)).unwrap();
+        let sub = |s: &str, name: &str| {
+            std::fs::create_dir_all(dir.join(s)).unwrap();
+            dir.join(s).join(name)
+        };
+        let mut assoc = Vec::new();
+        for f in frames {
+            let name = format!("{:.6}.png", f.t);
+            let factor = settings.depth_map_factor;
+            images::write_rgb(sub("rgb", &name), &f.rgb).unwrap();
+            images::write_depth(sub("depth", &name), &f.depth, factor).unwrap();
+            if let Some(bg) = &f.background {
+                images::write_rgb(sub("background", &name), bg).unwrap();
+            }
+            if let Some(d) = &f.depth_bg {
+                images::write_depth(sub("depth_bg", &name), d, factor).unwrap();
+            }
+            if let Some(m) = &f.mask {
+                images::write_mask(sub("mask", &name), m).unwrap();
+            }
+            if let Some(p) = &f.prob {
+                let png = sub("prob", &name);
+                weights::write_prob_png(&png, p).unwrap();
+                weights::write_prob_pfm(png.with_extension("pfm"), p).unwrap();
+            }
+            assoc.push(Association {
+                t_rgb: f.t,
+                rgb: format!("rgb/{name}"),
+                t_depth: f.t,
+                depth: format!("depth/{name}"),
+            });
+        }
+        tum::write_associations(dir.join(ASSOCIATION_FILES[0]), &assoc).unwrap();
+        if let Some(gt) = gt {
+            gt.write_tum(dir.join("groundtruth.txt")).unwrap();
+        }
+    }
+
     #[test]
     fn written_sequences_read_back_identically() {
-        use rayon::prelude::*;
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("synth_seq");
-        let w = SequenceWriter::create(&dir, &Settings::tum3()).unwrap();
         let frames: Vec<FrameData> = (0..3).map(frame).collect();
-        let assoc: Vec<Association> = frames
-            .par_iter()
-            .rev()
-            .map(|f| w.write_frame(f).unwrap())
-            .collect();
         let gt = Trajectory::new(
             (0..30)
                 .map(|i| {
@@ -1055,7 +950,7 @@ mod writer_tests {
                 })
                 .collect(),
         );
-        w.finish(&assoc, Some(&gt)).unwrap();
+        write_dynapix_sequence(&dir, &frames, Some(&gt));
         let seq = Sequence::open(&dir).unwrap();
         assert_eq!(seq.layout, Layout::DynaPix);
         assert_eq!(seq.settings().unwrap(), &Settings::tum3());
@@ -1074,24 +969,15 @@ mod writer_tests {
             let x = f.gt_pose.unwrap().translation.x;
             assert!((x - (f.t - 1000.0) * 100.0).abs() < 1e-6, "{x}");
         }
-        // Same-named frames and mismatched sizes are refused.
-        let dup = vec![assoc[0].clone(), assoc[0].clone()];
-        assert!(w.finish(&dup, None).is_err());
-        let mut bad = frame(5);
-        bad.mask = Some(GrayImage::new(3, 3));
-        let e = w.write_frame(&bad).unwrap_err().to_string();
-        assert!(e.contains("mask/") && e.contains("rgb/"), "{e}");
     }
 
     #[test]
-    fn probability_maps_written_beside_a_read_only_dataset() {
+    fn probability_maps_read_from_beside_a_read_only_dataset() {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("seq");
-        let w = SequenceWriter::create(&dir, &Settings::tum3()).unwrap();
         let mut f = frame(0);
         f.prob = None;
-        let a = w.write_frame(&f).unwrap();
-        w.finish(&[a], None).unwrap();
+        write_dynapix_sequence(&dir, std::slice::from_ref(&f), None);
         let out = tmp.path().join("motion_out");
         let opts = SequenceOptions {
             prob_dir: Some(out.clone()),
@@ -1100,12 +986,12 @@ mod writer_tests {
         let seq = Sequence::open_with(&dir, &opts).unwrap();
         assert!(seq.load_frame(0).unwrap().prob.is_none());
         let p = ProbMap::from_pixel(6, 4, Luma([0.3]));
-        seq.write_prob(0, &p).unwrap();
-        assert!(seq.prob_png_path(0).unwrap().starts_with(&out));
-        assert!(seq.prob_png_path(0).unwrap().is_file() && seq.prob_pfm_path(0).unwrap().is_file());
+        std::fs::create_dir_all(&out).unwrap();
+        let png = out.join(format!("{:.6}.png", f.t));
+        weights::write_prob_png(&png, &p).unwrap();
+        weights::write_prob_pfm(png.with_extension("pfm"), &p).unwrap();
         assert!(!dir.join("prob").exists());
         let again = Sequence::open_with(&dir, &opts).unwrap();
         assert_eq!(again.load_frame(0).unwrap().prob.unwrap(), p);
-        assert!(seq.write_prob(7, &p).is_err());
     }
 }

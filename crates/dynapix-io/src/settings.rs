@@ -21,7 +21,6 @@ use serde::Deserialize;
 use crate::atomic::write_atomic;
 use crate::datasets::Dataset;
 use crate::error::{IoError, Result};
-use crate::images::Gray16Image;
 use crate::text::read_text;
 
 /// Names of the built-in presets, for CLI help and error messages.
@@ -517,11 +516,6 @@ impl Settings {
         self.bf / self.fx
     }
 
-    /// Close/far depth threshold in metres, `bf · ThDepth / fx` (fr3: 2.988 m).
-    pub fn th_depth_metres(&self) -> f64 {
-        self.bf * self.th_depth / self.fx
-    }
-
     /// The settings-file text (`%YAML:1.0` header, keys in ORB-SLAM2 order), readable by
     /// ORB-SLAM2 and by [`Settings::parse`].
     pub fn to_yaml_string(&self) -> String {
@@ -642,12 +636,6 @@ impl Settings {
         }
     }
 
-    /// The preset implied by a dataset folder name: `tumN` for `rgbd_dataset_freiburgN_*`
-    /// (N = 1, 2, 3), `bonn` for `rgbd_bonn_*` ([`Dataset::from_folder_name`]).
-    pub fn preset_for_folder_name(name: &str) -> Option<Self> {
-        Self::preset(Dataset::from_folder_name(name)?.preset_name())
-    }
-
     /// The settings of a sequence folder: its `camera.yaml` if present, else the preset of
     /// its dataset ([`Dataset::of_dir`]: a `rgbd_dataset_freiburgN_*` or `rgbd_bonn_*` folder,
     /// or a folder linking to one), else an error saying that the camera cannot be told (the
@@ -674,38 +662,11 @@ impl Settings {
                 )
             })
     }
-
-    /// A warning when `DepthMapFactor` looks wrong for a raw depth image: the median valid
-    /// depth should lie between 0.2 m and 20 m (indoor RGB-D). `None` when plausible or when
-    /// the image has no valid depth.
-    pub fn depth_factor_warning(&self, raw_depth: &Gray16Image) -> Option<String> {
-        let mut valid: Vec<u16> = raw_depth
-            .pixels()
-            .map(|p| p[0])
-            .filter(|&v| v > 0)
-            .collect();
-        if valid.is_empty() {
-            return None;
-        }
-        let mid = valid.len() / 2;
-        let (_, median, _) = valid.select_nth_unstable(mid);
-        let metres = *median as f64 / self.depth_map_factor;
-        if (0.2..=20.0).contains(&metres) {
-            None
-        } else {
-            Some(format!(
-                "DepthMapFactor {} gives a median depth of {metres:.3} m (raw {}); \
-                 TUM uses 5000 (0.2 mm units), GRADE 1000 (mm)",
-                self.depth_map_factor, median
-            ))
-        }
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use image::Luma;
     use std::path::PathBuf;
 
     #[test]
@@ -787,7 +748,6 @@ mod tests {
         let s = Settings::parse(FR3_LIKE, Path::new("TUM3.yaml")).unwrap();
         assert_eq!(s, Settings::tum3());
         assert!((s.baseline() - 0.074711).abs() < 1e-6);
-        assert!((s.th_depth_metres() - 1600.0 / 535.4).abs() < 1e-12);
         let cam = s.camera();
         assert_eq!(
             (cam.width, cam.height, cam.fx, cam.cy),
@@ -924,9 +884,6 @@ mod tests {
         assert_eq!((b.bf, b.th_depth, b.fps), (40.0, 40.0, 30.0));
         assert!(b.camera().is_distorted());
         assert_eq!(Settings::preset("BONN"), Some(Settings::bonn()));
-        assert!(Settings::preset_for_folder_name("rgbd_bonn_").is_none());
-        assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg4_x").is_none());
-        assert!(Settings::preset_for_folder_name("rgbd_dataset_freiburg1xyz").is_none());
         let real = PathBuf::from(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
@@ -943,17 +900,5 @@ mod tests {
         } else {
             eprintln!("skipped real-data part: {} not found", real.display());
         }
-    }
-
-    #[test]
-    fn depth_factor_warning_flags_implausible_scales() {
-        // 2 m in TUM units.
-        let raw = Gray16Image::from_fn(10, 10, |x, _| Luma([if x == 0 { 0 } else { 10000 }]));
-        assert!(Settings::tum3().depth_factor_warning(&raw).is_none());
-        let mut s = Settings::tum3();
-        s.depth_map_factor = 100.0;
-        let w = s.depth_factor_warning(&raw).unwrap();
-        assert!(w.contains("100.000 m"), "{w}");
-        assert!(s.depth_factor_warning(&Gray16Image::new(4, 4)).is_none());
     }
 }

@@ -7,6 +7,7 @@
 use std::path::Path;
 
 use dynapix_io::images::{self, Gray16Image};
+use dynapix_io::weights;
 use dynapix_io::{
     GtFrame, IoError, MotionProbability, Settings, StaticWeights, Trajectory, trajectory, tum,
 };
@@ -118,10 +119,10 @@ fn read_every_way(p: &Path) {
     let _ = images::read_mask(p);
     let _ = images::read_depth_raw(p);
     let _ = images::read_depth(p, 5000.0);
-    let _ = images::read_prob_png_raw(p);
-    let _ = images::read_static_weights(p);
-    let _ = images::read_motion_probability(p);
-    let _ = images::read_prob_pfm(p);
+    let _ = weights::read_prob_png_raw(p);
+    let _ = weights::read_static_weights(p);
+    let _ = weights::read_motion_probability(p);
+    let _ = weights::read_prob_pfm(p);
 }
 
 /// Small valid files of every kind the readers take, as bytes: rgb PNG, 16-bit depth PNG,

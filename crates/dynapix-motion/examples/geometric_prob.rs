@@ -9,7 +9,8 @@
 
 use std::path::PathBuf;
 
-use dynapix_io::images::{read_depth, read_prob_png, write_prob_png};
+use dynapix_io::images::read_depth;
+use dynapix_io::weights::{read_prob_png, write_prob_png};
 use dynapix_io::{Sequence, Trajectory};
 use dynapix_motion::{
     DepthView, StaticDepthParams, WorkingDepth, geometric_term, select_views, static_depth,

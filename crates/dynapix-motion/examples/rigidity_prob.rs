@@ -1,6 +1,6 @@
 //! Writes the pose-free rigidity cue ([`dynapix_motion::rigidity`]) of every frame of a
 //! TUM-layout sequence folder as probability maps `OUT/<rgb file name>` in the project's
-//! 16-bit format (`dynapix_io::images::write_prob_png`), and prints per frame the mean P, the
+//! 16-bit format (`dynapix_io::weights::write_prob_png`), and prints per frame the mean P, the
 //! time the frame took and, per neighbour, the fit (inlier fraction, translation) and, when
 //! the sequence has ground truth, how far the fit is from the ground-truth camera motion.
 //!
@@ -135,7 +135,7 @@ fn main() -> Result<(), Error> {
                     .rgb
                     .file_name()
                     .ok_or("rgb path without a file name")?;
-                dynapix_io::images::write_prob_png(args.out.join(name), &maps.p)?;
+                dynapix_io::weights::write_prob_png(args.out.join(name), &maps.p)?;
                 let mean_p =
                     maps.p.iter().map(|&v| v as f64).sum::<f64>() / maps.p.len().max(1) as f64;
                 let fits = maps

@@ -16,11 +16,7 @@ use crate::splat::{SplatParams, splat};
 use crate::{FloatImage, Mode, MotionError};
 
 fn median(v: &mut [f32]) -> f32 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    dynapix_geometry::stats::upper_median_by(v, f32::total_cmp).unwrap_or(0.0)
 }
 
 /// Returns `t_ts` corrected by the rotation that cancels the median flow between `cur_gray`

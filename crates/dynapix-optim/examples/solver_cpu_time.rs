@@ -16,17 +16,7 @@ use std::time::Instant;
 
 /// Process CPU time in seconds (Linux only; 0 elsewhere).
 fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return 0.0;
-    };
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else {
-        return 0.0;
-    };
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    // Field 14 is index 11 after the state field (field 3 = index 0); clock ticks are 100 Hz.
-    (ticks(11) + ticks(12)) / 100.0
+    dynapix_io::usage::cpu_seconds().unwrap_or(0.0)
 }
 
 fn measure(name: &str, calls: usize, mut f: impl FnMut()) {

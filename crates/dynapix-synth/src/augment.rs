@@ -296,10 +296,6 @@ impl Augmenter {
 /// Median of the valid (non-zero) raw depths, in metres.
 pub fn median_depth(depth: &Gray16Image, depth_factor: f32) -> Option<f32> {
     let mut v: Vec<u16> = depth.as_raw().iter().copied().filter(|&d| d > 0).collect();
-    if v.is_empty() {
-        return None;
-    }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable(mid);
-    Some(*m as f32 / depth_factor)
+    let m = dynapix_geometry::stats::upper_median_by(&mut v, u16::cmp)?;
+    Some(m as f32 / depth_factor)
 }

@@ -18,6 +18,8 @@
 //!
 //! Augmentation of real sequences: [`augment`] and [`output::augment_sequence`].
 
+#![forbid(unsafe_code)]
+
 pub mod augment;
 pub mod movers;
 pub mod output;
@@ -78,4 +80,7 @@ pub enum SynthError {
     /// Reading or writing a dataset failed (from `dynapix-io`).
     #[error(transparent)]
     Dataset(#[from] dynapix_io::IoError),
+    /// Writing a flow file failed.
+    #[error(transparent)]
+    Flow(#[from] dynapix_flow::FlowError),
 }

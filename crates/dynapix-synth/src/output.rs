@@ -10,11 +10,12 @@
 use crate::SynthError;
 use crate::sequence::{Flow, Frame, Gray16Image, Sequence};
 use dynapix_geometry::PinholeCamera;
+use dynapix_io::tum::{self, Association, ListEntry};
+use dynapix_io::{StampedPose, Trajectory, write_atomic};
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use image::{ExtendedColorType, GrayImage, ImageEncoder, RgbImage};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Sub-folders of the layout, in the order they are written.
@@ -25,11 +26,6 @@ fn io_err(path: &Path, source: std::io::Error) -> SynthError {
         path: path.to_path_buf(),
         source,
     }
-}
-
-/// Writes `bytes` to `path` atomically (temporary file in the same folder, then rename).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SynthError> {
-    Ok(dynapix_io::write_atomic(path, bytes)?)
 }
 
 fn png_bytes(
@@ -86,73 +82,6 @@ pub fn gray16_png(path: &Path, img: &Gray16Image) -> Result<Vec<u8>, SynthError>
     )
 }
 
-/// Middlebury `.flo` bytes: magic 202021.25, width, height (i32), then (u, v) f32 pairs, little endian.
-pub fn flo_bytes(flow: &Flow) -> Vec<u8> {
-    let mut out = Vec::with_capacity(12 + flow.data.len() * 8);
-    out.extend_from_slice(&202021.25f32.to_le_bytes());
-    out.extend_from_slice(&(flow.width as i32).to_le_bytes());
-    out.extend_from_slice(&(flow.height as i32).to_le_bytes());
-    for [u, v] in &flow.data {
-        out.extend_from_slice(&u.to_le_bytes());
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    out
-}
-
-/// Reads a Middlebury `.flo` file.
-pub fn read_flo(path: &Path) -> Result<Flow, SynthError> {
-    let bytes = std::fs::read(path).map_err(|e| io_err(path, e))?;
-    let bad = |what: String| SynthError::Format {
-        path: path.to_path_buf(),
-        what,
-    };
-    let word = |k: usize| -> Result<[u8; 4], SynthError> {
-        bytes
-            .get(4 * k..4 * k + 4)
-            .and_then(|s| s.try_into().ok())
-            .ok_or_else(|| bad(format!("file ends at byte {}", bytes.len())))
-    };
-    let magic = f32::from_le_bytes(word(0)?);
-    if magic != 202021.25 {
-        return Err(bad(format!("magic {magic}, expected 202021.25")));
-    }
-    let w = i32::from_le_bytes(word(1)?);
-    let h = i32::from_le_bytes(word(2)?);
-    if w <= 0 || h <= 0 {
-        return Err(bad(format!("size {w}x{h}")));
-    }
-    let n = w as usize * h as usize;
-    if bytes.len() != 12 + 8 * n {
-        return Err(bad(format!(
-            "{} bytes, expected {} for {w}x{h}",
-            bytes.len(),
-            12 + 8 * n
-        )));
-    }
-    let data = (0..n)
-        .map(|i| {
-            let u = f32::from_le_bytes(word(3 + 2 * i)?);
-            let v = f32::from_le_bytes(word(4 + 2 * i)?);
-            Ok([u, v])
-        })
-        .collect::<Result<Vec<_>, SynthError>>()?;
-    Ok(Flow {
-        width: w as usize,
-        height: h as usize,
-        data,
-    })
-}
-
-/// One line of a TUM trajectory: `t tx ty tz qx qy qz qw`.
-pub fn tum_line(ts: &str, pose: &Isometry3<f64>) -> String {
-    let t = pose.translation.vector;
-    let q = pose.rotation.coords; // (x, y, z, w)
-    format!(
-        "{ts} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6} {:.6}",
-        t.x, t.y, t.z, q.x, q.y, q.z, q.w
-    )
-}
-
 /// ORB-SLAM2 settings of a synthetic sequence: its camera, depth factor 5000, and the TUM
 /// values for the rest (bf 40, ThDepth 40, 1000 ORB features, FAST 20/7).
 ///
@@ -175,11 +104,6 @@ pub fn camera_settings(cam: &PinholeCamera, fps: f64) -> dynapix_io::Settings {
         depth_map_factor: crate::sequence::DEPTH_FACTOR as f64,
         ..dynapix_io::Settings::tum3()
     }
-}
-
-/// The `camera.yaml` text of a synthetic sequence (see [`camera_settings`]).
-pub fn camera_yaml(cam: &PinholeCamera, fps: f64) -> String {
-    camera_settings(cam, fps).to_yaml_string()
 }
 
 /// Creates the layout folders under `dir` (and `flow/` when asked).
@@ -214,38 +138,53 @@ pub fn write_frame(
                 4 => gray_png(path, &frame.mask)?,
                 _ => gray16_png(path, &frame.instance)?,
             };
-            write_atomic(path, &bytes)
+            Ok(write_atomic(path, &bytes)?)
         })
         .collect::<Result<Vec<()>, SynthError>>()?;
     if let Some(f) = flow {
-        write_atomic(&dir.join("flow").join(format!("{ts}.flo")), &flo_bytes(f))?;
+        dynapix_flow::write_flo(dir.join("flow").join(format!("{ts}.flo")), f)?;
     }
     Ok(())
 }
 
 /// Writes the list files, ground truth and camera settings for frames `0..n` of `seq`.
 pub fn write_lists(dir: &Path, seq: &Sequence, n: usize) -> Result<(), SynthError> {
-    let mut rgb = String::from("# color images\n# file: 'dynapix synth'\n# timestamp filename\n");
-    let mut depth = String::from("# depth maps\n# file: 'dynapix synth'\n# timestamp filename\n");
-    let mut assoc = String::new();
-    let mut gt = String::from(
-        "# ground truth trajectory (camera-to-world)\n# file: 'dynapix synth'\n# timestamp tx ty tz qx qy qz qw\n",
+    let list = |sub: &str| -> Vec<ListEntry> {
+        (0..n)
+            .map(|i| ListEntry {
+                t: seq.time(i),
+                path: format!("{sub}/{}.png", seq.timestamp(i)),
+            })
+            .collect()
+    };
+    let (rgb, depth) = (list("rgb"), list("depth"));
+    write_lists_of(dir, &rgb, &depth)?;
+    let gt = Trajectory::new(
+        (0..n)
+            .map(|i| StampedPose::new(seq.time(i), seq.pose(i)))
+            .collect(),
     );
-    for i in 0..n {
-        let ts = seq.timestamp(i);
-        let _ = writeln!(rgb, "{ts} rgb/{ts}.png");
-        let _ = writeln!(depth, "{ts} depth/{ts}.png");
-        let _ = writeln!(assoc, "{ts} rgb/{ts}.png {ts} depth/{ts}.png");
-        let _ = writeln!(gt, "{}", tum_line(&ts, &seq.pose(i)));
-    }
-    write_atomic(&dir.join("rgb.txt"), rgb.as_bytes())?;
-    write_atomic(&dir.join("depth.txt"), depth.as_bytes())?;
-    write_atomic(&dir.join("association.txt"), assoc.as_bytes())?;
-    write_atomic(&dir.join("groundtruth.txt"), gt.as_bytes())?;
-    write_atomic(
-        &dir.join("camera.yaml"),
-        camera_yaml(&seq.params.camera, seq.params.fps).as_bytes(),
-    )
+    gt.write_tum(dir.join("groundtruth.txt"))?;
+    camera_settings(&seq.params.camera, seq.params.fps).write(dir.join("camera.yaml"))?;
+    Ok(())
+}
+
+/// Writes `rgb.txt`, `depth.txt` and `association.txt` (rgb and depth paired in order).
+fn write_lists_of(dir: &Path, rgb: &[ListEntry], depth: &[ListEntry]) -> Result<(), SynthError> {
+    tum::write_list(dir.join("rgb.txt"), rgb, "color images")?;
+    tum::write_list(dir.join("depth.txt"), depth, "depth maps")?;
+    let assoc: Vec<Association> = rgb
+        .iter()
+        .zip(depth)
+        .map(|(r, d)| Association {
+            t_rgb: r.t,
+            rgb: r.path.clone(),
+            t_depth: d.t,
+            depth: d.path.clone(),
+        })
+        .collect();
+    tum::write_associations(dir.join("association.txt"), &assoc)?;
+    Ok(())
 }
 
 /// Generates and writes the whole sequence into `dir`; `flow_step` adds flow to frame `i+k`
@@ -323,11 +262,7 @@ pub fn augment_sequence(
                 what: "file name is not UTF-8".into(),
             })
     };
-    let mut rgb_list =
-        String::from("# color images\n# file: 'dynapix synth --augment'\n# timestamp filename\n");
-    let mut depth_list =
-        String::from("# depth maps\n# file: 'dynapix synth --augment'\n# timestamp filename\n");
-    let mut assoc = String::new();
+    let (mut rgb_list, mut depth_list) = (Vec::new(), Vec::new());
     for (n, (info, pose)) in frames.iter().enumerate() {
         let rgb = dynapix_io::images::read_rgb(&info.rgb)?;
         let depth = dynapix_io::images::read_depth_raw(&info.depth)?;
@@ -366,21 +301,20 @@ pub fn augment_sequence(
                     4 => gray_png(path, &c.mask)?,
                     _ => gray16_png(path, &c.instance)?,
                 };
-                write_atomic(path, &bytes)
+                Ok(write_atomic(path, &bytes)?)
             })
             .collect::<Result<Vec<()>, SynthError>>()?;
-        let _ = writeln!(rgb_list, "{:.6} rgb/{rgb_name}", info.t);
-        let _ = writeln!(depth_list, "{:.6} depth/{depth_name}", info.t_depth);
-        let _ = writeln!(
-            assoc,
-            "{:.6} rgb/{rgb_name} {:.6} depth/{depth_name}",
-            info.t, info.t_depth
-        );
+        rgb_list.push(ListEntry {
+            t: info.t,
+            path: format!("rgb/{rgb_name}"),
+        });
+        depth_list.push(ListEntry {
+            t: info.t_depth,
+            path: format!("depth/{depth_name}"),
+        });
         progress(n, frames.len());
     }
-    write_atomic(&out_dir.join("rgb.txt"), rgb_list.as_bytes())?;
-    write_atomic(&out_dir.join("depth.txt"), depth_list.as_bytes())?;
-    write_atomic(&out_dir.join("association.txt"), assoc.as_bytes())?;
+    write_lists_of(out_dir, &rgb_list, &depth_list)?;
     let gt_src = seq_dir.join("groundtruth.txt");
     if seq.gt_convention.needs_conversion() {
         // The source holds marker poses (Bonn); the output folder is a plain dynapix
@@ -390,7 +324,7 @@ pub fn augment_sequence(
         }
     } else {
         let gt = std::fs::read(&gt_src).map_err(|e| io_err(&gt_src, e))?;
-        write_atomic(&out_dir.join("groundtruth.txt"), &gt)?;
+        write_atomic(out_dir.join("groundtruth.txt"), &gt)?;
     }
     settings.write(out_dir.join("camera.yaml"))?;
     Ok(frames.len())

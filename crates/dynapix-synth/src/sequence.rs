@@ -223,15 +223,7 @@ impl Frame {
 }
 
 /// A dense flow field, row-major `[u, v]` per pixel ([`UNKNOWN_FLOW`] where undefined).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Flow {
-    /// Width (px).
-    pub width: usize,
-    /// Height (px).
-    pub height: usize,
-    /// Vectors.
-    pub data: Vec<[f32; 2]>,
-}
+pub type Flow = dynapix_flow::FlowField;
 
 /// The generator of one sequence.
 #[derive(Clone, Debug)]
@@ -701,8 +693,8 @@ impl Sequence {
             }
         });
         Flow {
-            width: w,
-            height: h,
+            width: w as u32,
+            height: h as u32,
             data,
         }
     }

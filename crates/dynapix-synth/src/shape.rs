@@ -200,17 +200,6 @@ impl Shape {
         }
     }
 
-    /// Radius of a sphere at the local origin that contains the shape.
-    pub fn bounding_radius(&self) -> f32 {
-        match *self {
-            Shape::Quad { half } => half[0].hypot(half[1]),
-            Shape::Box { half } | Shape::RoomInside { half } => half.norm(),
-            Shape::Sphere { r } => r,
-            Shape::Cylinder { r, half_h } => r.hypot(half_h),
-            Shape::Capsule { r, half_h } => r + half_h,
-        }
-    }
-
     /// Corners of a local bounding box of the shape.
     pub fn local_corners(&self) -> [Vector3<f32>; 8] {
         let h = match *self {

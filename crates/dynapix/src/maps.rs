@@ -14,7 +14,8 @@ use std::path::{Path, PathBuf};
 
 use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
-use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
+use dynapix_io::images::{read_depth, read_depth_raw, read_rgb};
+use dynapix_io::weights::write_motion_probability;
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
     RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
@@ -361,7 +362,7 @@ impl<'a> MapJob<'a> {
                             .ok_or("frame without a file name")?;
                         let _stage =
                             tracing::info_span!(target: "dynapix::stage", "read maps").entered();
-                        dynapix_io::images::read_motion_probability(path)?.into_image()
+                        dynapix_io::weights::read_motion_probability(path)?.into_image()
                     }
                     None => rig_job.frame(i)?,
                 };

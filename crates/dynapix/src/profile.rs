@@ -191,42 +191,7 @@ where
     }
 }
 
-/// CPU time (user + system) and peak resident memory of this process so far.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct ProcessUsage {
-    /// User + system CPU seconds of every thread of the process.
-    pub cpu_seconds: f64,
-    /// Peak resident set size (MiB) since the process started.
-    pub peak_rss_mib: f64,
-}
-
-/// The process's CPU time and peak memory (`None` where the platform does not say).
-pub fn process_usage() -> Option<ProcessUsage> {
-    #[cfg(unix)]
-    {
-        // SAFETY: getrusage writes into the zeroed struct we own and reads nothing else.
-        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
-        // SAFETY: `u` is a valid, writable rusage.
-        if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
-            return None;
-        }
-        let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-        // ru_maxrss is in KiB on Linux (bytes on macOS).
-        let rss_kib = if cfg!(target_os = "macos") {
-            u.ru_maxrss as f64 / 1024.0
-        } else {
-            u.ru_maxrss as f64
-        };
-        Some(ProcessUsage {
-            cpu_seconds: tv(u.ru_utime) + tv(u.ru_stime),
-            peak_rss_mib: rss_kib / 1024.0,
-        })
-    }
-    #[cfg(not(unix))]
-    {
-        None
-    }
-}
+pub use dynapix_io::usage::{ProcessUsage, process_usage};
 
 /// Threshold (bytes) below which [`retain_freed_memory`] has glibc serve allocations from its
 /// heap: 32 MiB, glibc's largest allowed value on 64-bit targets.
@@ -316,16 +281,5 @@ mod tests {
             let _s = tracing::info_span!(target: "dynapix::stage", "a").entered();
         });
         assert_eq!(profiler.stop(), Profile::default());
-    }
-
-    #[test]
-    fn process_usage_is_plausible() {
-        let before = process_usage();
-        busy(20);
-        let after = process_usage();
-        if let (Some(a), Some(b)) = (before, after) {
-            assert!(b.cpu_seconds >= a.cpu_seconds + 0.01, "{a:?} {b:?}");
-            assert!(b.peak_rss_mib > 1.0, "{b:?}");
-        }
     }
 }

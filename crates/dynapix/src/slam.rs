@@ -10,7 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use dynapix_io::images::{read_mask, read_static_weights};
+use dynapix_io::images::read_mask;
+use dynapix_io::weights::read_static_weights;
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
 use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};

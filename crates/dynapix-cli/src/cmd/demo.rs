@@ -53,7 +53,7 @@ pub struct Args {
 
 /// Fig.-1-style overlay: the frame with the motion probability in red.
 fn overlay(rgb: &RgbImage, prob_png: &Path) -> anyhow::Result<RgbImage> {
-    let prob = dynapix_io::images::read_motion_probability(prob_png)?;
+    let prob = dynapix_io::weights::read_motion_probability(prob_png)?;
     if prob.dimensions() != rgb.dimensions() {
         bail!("{}: size differs from the frame", prob_png.display());
     }

@@ -329,7 +329,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             let p = MotionProbability::new(m.p);
             folder.write_map(&input, i, &p)?;
             if args.float_maps {
-                dynapix_io::images::write_prob_pfm(
+                dynapix_io::weights::write_prob_pfm(
                     folder.dir.join(&name).with_extension("pfm"),
                     p.as_image(),
                 )?;
@@ -396,7 +396,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if args.eval_masks {
         for &i in &skipped {
             let p = map_path(i).context("no file name")?;
-            let p = dynapix_io::images::read_prob_png(p)?;
+            let p = dynapix_io::weights::read_prob_png(p)?;
             let mask_path = seq.frames[i].mask.as_ref().context("no mask")?;
             let mask = dynapix_io::images::read_mask(mask_path)?;
             let pos: Vec<bool> = mask.iter().map(|&m| m == 255).collect();

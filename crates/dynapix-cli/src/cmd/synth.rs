@@ -165,7 +165,7 @@ pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
     if let Some(path) = &args.preview {
         let sheet = preview::contact_sheet(&p, &Preset::ALL, &[0.0, 2.0, 4.0], 200)?;
         let bytes = output::rgb_png(path, &sheet)?;
-        output::write_atomic(path, &bytes)?;
+        dynapix_io::write_atomic(path, &bytes)?;
         eprintln!("contact sheet written to {}", path.display());
     }
     if let Some(dir) = &args.out {
@@ -192,16 +192,7 @@ pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// CPU time (user + system) of this process in seconds, from `/proc/self/stat` (Linux);
-/// `None` elsewhere. On a shared machine wall time over-states the cost, CPU time does not.
-fn cpu_seconds() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let rest = s.rsplit_once(')')?.1;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ut: f64 = f.get(11)?.parse().ok()?;
-    let st: f64 = f.get(12)?.parse().ok()?;
-    Some((ut + st) / 100.0)
-}
+use dynapix_io::usage::cpu_seconds;
 
 fn bench(p: &SynthParams, n: usize) -> anyhow::Result<()> {
     let n = n.max(1);

@@ -19,7 +19,7 @@
 
 use super::{VocabError, Vocabulary};
 use crate::keypoint::Descriptor;
-use std::io::{BufRead, Write};
+use std::io::BufRead;
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"DPXVOCAB";
@@ -253,25 +253,10 @@ impl Vocabulary {
         }
     }
 
-    /// Writes the binary format atomically (temporary file in the same folder, then rename).
+    /// Writes the binary format atomically ([`dynapix_io::write_atomic`]).
     pub fn save(&self, path: &Path) -> Result<(), VocabError> {
-        let io_err = |source| VocabError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut tmp = path.as_os_str().to_owned();
-        tmp.push(".tmp");
-        let tmp = std::path::PathBuf::from(tmp);
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            f.write_all(&self.to_bytes())?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, path)
-        };
-        write().map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            io_err(e)
-        })
+        dynapix_io::write_atomic(path, &self.to_bytes())?;
+        Ok(())
     }
 }
 
