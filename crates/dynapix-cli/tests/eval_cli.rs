@@ -357,3 +357,75 @@ fn failed_runs_are_counted_named_and_fail_the_command() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("not finite"));
 }
+
+/// Issue 36 item 5: a timestamp given twice with different poses (ground truth or estimate)
+/// is refused naming the file and both lines; an empty file is called empty (not a clock
+/// problem); a one- or two-frame estimate is called too short.
+#[test]
+fn duplicated_stamps_empty_files_and_short_estimates_are_explained() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let eval = |gt: &Path, est: &Path| {
+        let out = bin()
+            .args(["eval", "--gt"])
+            .arg(gt)
+            .arg("--est")
+            .arg(est)
+            .output()
+            .expect("runs");
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!err.contains("panicked"), "{err}");
+        err
+    };
+    // Line 5 repeats the stamp of line 4 (comment lines counted) with another pose.
+    let with_duplicate = |src: &Path, name: &str| {
+        let text = std::fs::read_to_string(src).expect("read");
+        let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+        let data = lines
+            .iter()
+            .position(|l| !l.starts_with('#'))
+            .expect("data");
+        let mut f: Vec<String> = lines[data + 1]
+            .split_whitespace()
+            .map(str::to_string)
+            .collect();
+        f[1] = "9.5".into();
+        lines.insert(data + 2, f.join(" "));
+        let p = dir.path().join(name);
+        std::fs::write(&p, lines.join("\n") + "\n").expect("write");
+        (p, data + 2, data + 3)
+    };
+    let (est, first, second) = with_duplicate(&small_est(), "est_dup.txt");
+    let err = eval(&small_gt(), &est);
+    assert!(
+        err.contains(&format!("est_dup.txt:{second}")) && err.contains(&format!("line {first}")),
+        "{err}"
+    );
+    let (gt, first, second) = with_duplicate(&small_gt(), "gt_dup.txt");
+    let err = eval(&gt, &small_est());
+    assert!(
+        err.contains(&format!("gt_dup.txt:{second}")) && err.contains(&format!("line {first}")),
+        "{err}"
+    );
+
+    let empty = dir.path().join("empty.txt");
+    std::fs::write(&empty, "# nothing yet\n").expect("write");
+    for err in [eval(&small_gt(), &empty), eval(&empty, &small_est())] {
+        assert!(
+            err.contains("empty.txt") && err.contains("no poses") && !err.contains("clock"),
+            "{err}"
+        );
+    }
+
+    let est_text = std::fs::read_to_string(small_est()).expect("read");
+    let data: Vec<&str> = est_text.lines().filter(|l| !l.starts_with('#')).collect();
+    for n in [1, 2] {
+        let short = dir.path().join(format!("short{n}.txt"));
+        std::fs::write(&short, data[..n].join("\n") + "\n").expect("write");
+        let err = eval(&small_gt(), &short);
+        assert!(
+            err.contains(&format!("holds {n} pose(s)")) && !err.contains("clock"),
+            "{err}"
+        );
+    }
+}

@@ -18,6 +18,25 @@ pub enum EvalError {
         /// Association tolerance used, seconds.
         max_diff: f64,
     },
+    /// A trajectory file holds no pose at all.
+    #[error("{path}: holds no poses (the file is empty or has only comments); nothing to evaluate")]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A trajectory has fewer poses than an ATE needs (a sequence of one or two frames).
+    #[error(
+        "the {which} trajectory holds {got} pose(s); an ATE needs at least {needed} (a \
+         sequence of {got} frame(s) is too short to be scored)"
+    )]
+    TooFewPoses {
+        /// `estimated` or `ground-truth`.
+        which: &'static str,
+        /// Poses it holds.
+        got: usize,
+        /// Poses needed.
+        needed: usize,
+    },
     /// The alignment failed (degenerate geometry).
     #[error("alignment failed: {0}")]
     Align(#[from] dynapix_geometry::align::AlignError),

@@ -11,9 +11,23 @@ use dynapix_io::{GroundTruthConvention, GtFrame};
 use std::path::{Path, PathBuf};
 
 /// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw`, `#` comments, commas/tabs).
+/// A timestamp given twice with different poses is an error naming both lines, an empty file
+/// is an error saying so ([`check_trajectory_file`]).
 pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Se3)>> {
-    let t = dynapix_io::Trajectory::read_tum(path)?;
+    let t = check_trajectory_file(path)?;
     Ok(t.poses.into_iter().map(|p| (p.t, p.pose)).collect())
+}
+
+/// Reads a trajectory file for scoring: refuses a timestamp given twice with different poses
+/// (naming the file and both lines) and a file without any pose.
+pub fn check_trajectory_file(path: &Path) -> Result<dynapix_io::Trajectory> {
+    let t = dynapix_io::Trajectory::read_tum_strict(path)?;
+    if t.is_empty() {
+        return Err(EvalError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(t)
 }
 
 /// Reads a ground-truth file in `frame` ([`dynapix_io::read_ground_truth`]: the marker poses
@@ -23,6 +37,7 @@ pub fn read_ground_truth(
     path: &Path,
     frame: GtFrame,
 ) -> Result<(Vec<(f64, Se3)>, GroundTruthConvention)> {
+    check_trajectory_file(path)?;
     let gt = dynapix_io::read_ground_truth(path, frame)?;
     let poses = gt
         .trajectory

@@ -157,6 +157,14 @@ pub fn evaluate(
         {
             return Err(EvalError::NonFinite(format!("the {name} pose at t = {t}")));
         }
+        // Said before association, so a short sequence is not blamed on the clocks.
+        if traj.len() < params.ate.min_pairs {
+            return Err(EvalError::TooFewPoses {
+                which: name,
+                got: traj.len(),
+                needed: params.ate.min_pairs,
+            });
+        }
     }
     let ate_result = ate(gt, est, &params.ate)?;
     if !ate_result.stats.rmse.is_finite() {

@@ -49,7 +49,7 @@ pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
 };
 pub use images::{DepthImage, Gray16Image, ProbMap};
-pub use output::OutputFolder;
+pub use output::{OutputFolder, OutputLock};
 pub use sequence::{FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};

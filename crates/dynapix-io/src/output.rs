@@ -8,6 +8,13 @@
 //! renames stay in one parent folder, so they never cross a file system. Staging and old
 //! folders left by interrupted runs are removed when the next run on the same target begins.
 //!
+//! Two processes never share a target: [`OutputFolder::begin`] takes an advisory lock on
+//! `OUT.lock` beside the target (an OS file lock, released by the kernel when the process
+//! ends, even by SIGKILL) and holds it for the whole run, swap included. A second run on the
+//! same target is refused with an error naming the process that holds it. Leftover staging
+//! and old folders are removed only under that lock and only when the process named in
+//! their suffix is gone, so a live run's staging folder is never touched.
+//!
 //! Because the target is replaced, [`check_output_folder`] refuses up front a target that
 //! holds anything but an earlier result (a folder without any of the caller's marker files),
 //! so a mistyped `--out` never deletes a user's folder.
@@ -21,6 +28,125 @@ use crate::error::{IoError, Result};
 const STAGING: &str = ".tmp-";
 /// Suffix of replaced folders awaiting removal: `OUT.old-<pid>`.
 const OLD: &str = ".old-";
+/// Suffix of the lock file beside the target: `OUT.lock`.
+const LOCK: &str = ".lock";
+
+/// The exclusive right to replace one output folder, held from [`OutputLock::acquire`] until
+/// dropped: an advisory OS lock on the file `OUT.lock` beside the target, which holds the
+/// owner's process id. Dropping it removes the file, then releases the lock.
+#[derive(Debug)]
+pub struct OutputLock {
+    path: PathBuf,
+    file: fs::File,
+}
+
+impl OutputLock {
+    /// Takes the lock of the output folder `out`, or fails at once with an error naming the
+    /// process that holds it (`another dynapix run (pid N) is writing …`).
+    pub fn acquire(out: &Path) -> Result<Self> {
+        let (parent, name) = split(out)?;
+        let mut lock_name = name;
+        lock_name.push(LOCK);
+        let path = parent.join(lock_name);
+        // A holder that is finishing removes the file and then unlocks: a lock won on a file
+        // that is no longer (or no longer the same) `OUT.lock` is retried on the new one.
+        for _ in 0..16 {
+            let file = fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .map_err(|e| IoError::io(&path, e))?;
+            match file.try_lock() {
+                Ok(()) => {}
+                Err(fs::TryLockError::WouldBlock) => {
+                    let holder = fs::read_to_string(&path).unwrap_or_default();
+                    let holder = holder.trim();
+                    let who = if holder.is_empty() {
+                        "another dynapix run".to_string()
+                    } else {
+                        format!("another dynapix run (pid {holder})")
+                    };
+                    return Err(IoError::invalid(
+                        out,
+                        format!(
+                            "{who} is writing this output folder (lock {}); wait for it to \
+                             finish or give another --out",
+                            path.display()
+                        ),
+                    ));
+                }
+                Err(fs::TryLockError::Error(e)) => return Err(IoError::io(&path, e)),
+            }
+            if same_file(&file, &path) {
+                let mut lock = Self { path, file };
+                lock.record_pid()?;
+                return Ok(lock);
+            }
+        }
+        Err(IoError::invalid(
+            &path,
+            "cannot take the output folder's lock: the lock file keeps being replaced",
+        ))
+    }
+
+    /// The lock file (`OUT.lock`).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn record_pid(&mut self) -> Result<()> {
+        use std::io::{Seek, Write};
+        let pid = std::process::id().to_string();
+        self.file
+            .set_len(0)
+            .and_then(|()| self.file.seek(std::io::SeekFrom::Start(0)))
+            .and_then(|_| self.file.write_all(pid.as_bytes()))
+            .map_err(|e| IoError::io(&self.path, e))
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // Removed while still locked, so no other process can win a lock on a file that is
+        // about to disappear without noticing (see `acquire`).
+        let _ = fs::remove_file(&self.path);
+        let _ = self.file.unlock();
+    }
+}
+
+/// True when the open `file` is the file at `path` (same device and inode).
+#[cfg(unix)]
+fn same_file(file: &fs::File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+/// True when the open `file` is the file at `path` (elsewhere: the path still exists).
+#[cfg(not(unix))]
+fn same_file(_file: &fs::File, path: &Path) -> bool {
+    path.exists()
+}
+
+/// True when process `pid` is running (or may be: when it cannot be told, it is assumed
+/// alive, so its folders are kept).
+#[cfg(target_os = "linux")]
+fn process_alive(pid: u32) -> bool {
+    pid == std::process::id()
+        || Path::new("/proc").join(pid.to_string()).exists()
+        || !Path::new("/proc/self").exists()
+}
+
+/// True when process `pid` is running (or may be: when it cannot be told, it is assumed
+/// alive, so its folders are kept).
+#[cfg(not(target_os = "linux"))]
+fn process_alive(_pid: u32) -> bool {
+    true
+}
 
 /// Checks that files can be created in `dir` (created with its parents when missing) by
 /// creating and removing a probe file. Errors name the folder.
@@ -92,13 +218,19 @@ pub struct OutputFolder {
     target: PathBuf,
     staging: PathBuf,
     committed: bool,
+    /// Held until the value is gone (after the swap, or after the staging folder's removal).
+    _lock: OutputLock,
 }
 
 impl OutputFolder {
-    /// Checks `out` ([`check_output_folder`] with `markers`), removes staging and replaced
-    /// folders of earlier interrupted runs on it, and creates an empty staging folder beside it.
+    /// Takes the folder's lock ([`OutputLock::acquire`]: refused when another process holds
+    /// it), checks `out` ([`check_output_folder`] with `markers`), removes staging and replaced
+    /// folders of earlier interrupted runs on it whose process is gone, and creates an empty
+    /// staging folder beside it. The lock is held until the commit is done or the value is
+    /// dropped.
     pub fn begin(out: &Path, markers: &[&str]) -> Result<Self> {
         check_output_folder(out, markers)?;
+        let lock = OutputLock::acquire(out)?;
         let (parent, name) = split(out)?;
         let listed = if parent.as_os_str().is_empty() {
             Path::new(".")
@@ -109,12 +241,14 @@ impl OutputFolder {
         for e in fs::read_dir(listed).map_err(|e| IoError::io(listed, e))? {
             let e = e.map_err(|e| IoError::io(listed, e))?;
             let file = e.file_name().to_string_lossy().into_owned();
-            let leftover = [STAGING, OLD].iter().any(|s| {
+            let owner = [STAGING, OLD].iter().find_map(|s| {
                 file.strip_prefix(&name)
                     .and_then(|rest| rest.strip_prefix(s))
-                    .is_some_and(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+                    .filter(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+                    .map(|pid| pid.parse::<u32>().unwrap_or(u32::MAX))
             });
-            if leftover {
+            // Our own pid's leftovers come from an earlier process that had our pid.
+            if owner.is_some_and(|pid| pid == std::process::id() || !process_alive(pid)) {
                 remove_dir_or_file(&e.path())?;
             }
         }
@@ -124,6 +258,7 @@ impl OutputFolder {
             target: out.to_path_buf(),
             staging,
             committed: false,
+            _lock: lock,
         })
     }
 
@@ -226,7 +361,8 @@ mod tests {
         let out = tmp.path().join("out");
         fs::create_dir(&out).unwrap();
         fs::write(out.join("run.json"), "old").unwrap();
-        for leftover in ["out.tmp-12345", "out.old-77"] {
+        // Pids above any system's pid_max: their processes are gone.
+        for leftover in ["out.tmp-999999999", "out.old-999999998"] {
             fs::create_dir(tmp.path().join(leftover)).unwrap();
         }
         // Not leftovers of this folder.
@@ -266,5 +402,72 @@ mod tests {
         assert!(e.contains("f.txt"), "{e}");
         let e = check_writable_dir(&file).unwrap_err().to_string();
         assert!(e.contains("f.txt"), "{e}");
+    }
+
+    #[test]
+    fn a_second_writer_is_refused_while_the_first_runs_and_finishes_complete() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let first = OutputFolder::begin(&out, MARKERS).unwrap();
+        fs::write(first.path().join("run.json"), "first").unwrap();
+        fs::create_dir(first.path().join("passes")).unwrap();
+        fs::write(first.path().join("trajectory.txt"), "poses").unwrap();
+        // Another open of the lock file conflicts like another process would (flock).
+        let e = OutputFolder::begin(&out, MARKERS).unwrap_err().to_string();
+        let pid = std::process::id().to_string();
+        assert!(
+            e.contains(&format!("pid {pid}")) && e.contains("out.lock") && e.contains("--out"),
+            "{e}"
+        );
+        let e = OutputLock::acquire(&out).unwrap_err().to_string();
+        assert!(e.contains(&pid), "{e}");
+        // The refusal touched nothing of the live run.
+        assert_eq!(
+            fs::read_to_string(first.path().join("run.json")).unwrap(),
+            "first"
+        );
+        assert_eq!(
+            fs::read_to_string(tmp.path().join("out.lock")).unwrap(),
+            pid
+        );
+        first.commit().unwrap();
+        assert_eq!(names(&out), ["passes", "run.json", "trajectory.txt"]);
+        assert_eq!(
+            names(tmp.path()),
+            ["out"],
+            "the lock file goes with the lock"
+        );
+        // Released: the next run may begin; a dropped (failed) one releases too.
+        let again = OutputFolder::begin(&out, MARKERS).unwrap();
+        drop(again);
+        let lock = OutputLock::acquire(&out).unwrap();
+        assert_eq!(lock.path(), tmp.path().join("out.lock"));
+        drop(lock);
+        assert_eq!(names(tmp.path()), ["out"]);
+    }
+
+    #[test]
+    fn a_stale_lock_file_does_not_block_and_live_leftovers_are_kept() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        // A lock file left by a killed run holds a pid but no lock: the kernel dropped it.
+        fs::write(tmp.path().join("out.lock"), "999999999").unwrap();
+        // A staging folder whose process (pid 1, always running) is alive is not ours to remove.
+        fs::create_dir(tmp.path().join("out.tmp-1")).unwrap();
+        fs::write(tmp.path().join("out.tmp-1/run.json"), "live").unwrap();
+        let f = OutputFolder::begin(&out, MARKERS).unwrap();
+        assert_eq!(
+            fs::read_to_string(tmp.path().join("out.lock")).unwrap(),
+            std::process::id().to_string()
+        );
+        fs::write(f.path().join("run.json"), "new").unwrap();
+        f.commit().unwrap();
+        if Path::new("/proc/1").exists() {
+            assert_eq!(
+                fs::read_to_string(tmp.path().join("out.tmp-1/run.json")).unwrap(),
+                "live"
+            );
+        }
+        assert_eq!(fs::read_to_string(out.join("run.json")).unwrap(), "new");
     }
 }

@@ -82,7 +82,22 @@ impl Trajectory {
 
     /// Parses TUM trajectory text; `path` is only used in error messages.
     pub fn parse_tum(text: &str, path: &Path) -> Result<Self> {
+        Self::parse_tum_with(text, path, false)
+    }
+
+    /// Like [`Trajectory::read_tum`], but a timestamp given twice with different poses is an
+    /// error naming the file and both lines (the lenient reader keeps the later line). For
+    /// evaluation, where either pose would silently change the score.
+    pub fn read_tum_strict(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        Self::parse_tum_with(&read_text(path)?, path, true)
+    }
+
+    /// Parses TUM text; with `refuse_conflicts`, the same timestamp with another pose is an
+    /// error.
+    fn parse_tum_with(text: &str, path: &Path, refuse_conflicts: bool) -> Result<Self> {
         let mut poses: Vec<StampedPose> = Vec::new();
+        let mut prev_values = [0.0; 8];
         let mut prev_line = 0;
         for line in data_lines(text) {
             expect_columns(path, &line, 8, "timestamp tx ty tz qx qy qz qw")?;
@@ -116,11 +131,23 @@ impl Trajectory {
                         ),
                     ));
                 }
+                Some(_) if sp.t == prev_values[0] && refuse_conflicts && v != prev_values => {
+                    return Err(IoError::parse(
+                        path,
+                        line.no,
+                        format!(
+                            "timestamp {} is also on line {prev_line} with a different pose; \
+                             give one pose per timestamp (remove one of the two lines)",
+                            line.fields[0]
+                        ),
+                    ));
+                }
                 // Same timestamp twice: the TUM tools keep the later line.
                 Some(last) if sp.t == last.t => *last = sp,
                 _ => poses.push(sp),
             }
             prev_line = line.no;
+            prev_values = v;
         }
         Ok(Self { poses })
     }
@@ -443,6 +470,26 @@ mod tests {
         assert_eq!(t.poses[0].pose.translation.x, 5.0);
         assert!((t.poses[0].pose.rotation.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-4);
         assert!((t.poses[0].pose.rotation.norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_strict_reader_refuses_a_timestamp_with_two_poses() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("est.txt");
+        std::fs::write(
+            &p,
+            "# h\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n2 5 0 0 0 0 0 1\n3 0 0 0 0 0 0 1\n",
+        )
+        .unwrap();
+        let e = Trajectory::read_tum_strict(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("est.txt:4") && e.contains("line 3") && e.contains("timestamp 2"),
+            "{e}"
+        );
+        // The lenient reader keeps the later line; the same pose twice is no conflict.
+        assert_eq!(Trajectory::read_tum(&p).unwrap().len(), 3);
+        std::fs::write(&p, "1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n").unwrap();
+        assert_eq!(Trajectory::read_tum_strict(&p).unwrap().len(), 2);
     }
 
     #[test]

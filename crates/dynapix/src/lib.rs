@@ -77,7 +77,7 @@ pub use config::{
 pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
-pub use maps::{FrameMaps, MapFolder, MapJob, MapSet};
+pub use maps::{CacheCheck, FrameMaps, MapFolder, MapJob, MapSet};
 pub use method::{Method, Mode, Terms};
 pub use offline::{OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};

@@ -9,6 +9,11 @@
 //! their values, background, flow, camera, parameters, the code version of the maps); the
 //! cache key is a hash of it. Reading a folder back gives its provenance, so maps made with
 //! ground-truth poses are reported as such.
+//!
+//! A complete record also lists every map file with its size and FNV-64 checksum (`files`).
+//! A cache folder is reused only when each file still matches ([`MapFolder::check_cache`]):
+//! a truncated, missing or swapped map makes the whole folder be recomputed, with a warning
+//! naming the file, instead of stopping a run half-way.
 
 use std::path::{Path, PathBuf};
 
@@ -460,7 +465,8 @@ impl MapFolder {
         )
     }
 
-    /// Writes the record atomically.
+    /// Writes the record atomically; a `complete` one lists every map file with its size and
+    /// checksum ([`MapFolder::file_checksums`]).
     pub fn write_record(
         &self,
         input: &Input,
@@ -469,12 +475,15 @@ impl MapFolder {
         results: Value,
     ) -> Result<()> {
         std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
-        let doc = json!({
+        let mut doc = json!({
             "sequence": input.sequence.dir,
             "config": config,
             "status": status,
             "results": results,
         });
+        if status == "complete" {
+            doc["files"] = self.file_checksums(input)?;
+        }
         let text = serde_json::to_string_pretty(&doc)
             .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
         dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
@@ -491,20 +500,99 @@ impl MapFolder {
     ) -> (Self, String, bool) {
         let key = Fnv64::of(config.to_string().as_bytes());
         let folder = Self::new(root.join(format!("{prefix}-{key}")));
-        let reused = folder.is_complete(input, config);
+        let reused = match folder.check_cache(input, config) {
+            CacheCheck::Valid => true,
+            CacheCheck::Absent => false,
+            CacheCheck::Damaged(why) => {
+                tracing::warn!(
+                    "the cached maps in {} are damaged ({why}); recomputing them",
+                    folder.dir.display()
+                );
+                false
+            }
+        };
         (folder, key, reused)
     }
 
-    /// True when the record says `config`, the run completed, and every frame's map exists
-    /// (bad frames of a run that skips them have none).
+    /// True when the record says `config`, the run completed, and every frame's map is the
+    /// file that was recorded ([`MapFolder::check_cache`]).
     pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
-        let Some(Ok(rec)) = self.read_record() else {
-            return false;
+        self.check_cache(input, config) == CacheCheck::Valid
+    }
+
+    /// Size and FNV-64 checksum of every frame's map file (bad frames of a run that skips
+    /// them have none), by file name: `{"<name>.png": {"bytes": n, "fnv64": "…"}}`.
+    pub fn file_checksums(&self, input: &Input) -> Result<Value> {
+        let files = (0..input.len())
+            .into_par_iter()
+            .filter(|&i| !input.is_bad(i))
+            .map(|i| {
+                let path = self
+                    .map_path(input, i)
+                    .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+                let bytes = std::fs::read(&path).map_err(|e| dynapix_io::IoError::io(&path, e))?;
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                Ok((name, file_fingerprint(&bytes)))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Value::Object(files.into_iter().collect()))
+    }
+
+    /// Whether this folder holds the complete maps of `config`: its record says `config` and
+    /// `complete`, and every frame's map has the size and checksum the record lists.
+    pub fn check_cache(&self, input: &Input, config: &Value) -> CacheCheck {
+        let rec = match self.read_record() {
+            None => return CacheCheck::Absent,
+            Some(Err(e)) => return CacheCheck::Damaged(e.to_string()),
+            Some(Ok(rec)) => rec,
         };
-        rec.get("config") == Some(&as_read_back(config))
-            && rec.get("status").and_then(Value::as_str) == Some("complete")
-            && (0..input.len())
-                .all(|i| input.is_bad(i) || self.map_path(input, i).is_some_and(|p| p.is_file()))
+        if rec.get("config") != Some(&as_read_back(config)) {
+            return CacheCheck::Damaged(format!(
+                "{} describes other maps than its key",
+                self.dir.join(RECORD_FILE).display()
+            ));
+        }
+        if rec.get("status").and_then(Value::as_str) != Some("complete") {
+            // An interrupted computation: not damage, just unfinished.
+            return CacheCheck::Absent;
+        }
+        let Some(files) = rec.get("files").and_then(Value::as_object) else {
+            return CacheCheck::Damaged(format!(
+                "{} lists no checksums (written by an older version)",
+                self.dir.join(RECORD_FILE).display()
+            ));
+        };
+        let problem = (0..input.len())
+            .into_par_iter()
+            .filter(|&i| !input.is_bad(i))
+            .filter_map(|i| {
+                let path = self.map_path(input, i)?;
+                let name = path.file_name()?.to_string_lossy().into_owned();
+                let Some(expected) = files.get(&name) else {
+                    return Some((i, format!("{}: not in the record", path.display())));
+                };
+                match std::fs::read(&path) {
+                    Err(e) => Some((i, format!("{}: {e}", path.display()))),
+                    Ok(bytes) if &file_fingerprint(&bytes) != expected => Some((
+                        i,
+                        format!(
+                            "{}: {} bytes, not the {} bytes with the checksum the record lists",
+                            path.display(),
+                            bytes.len(),
+                            expected.get("bytes").unwrap_or(&Value::Null)
+                        ),
+                    )),
+                    Ok(_) => None,
+                }
+            })
+            .min_by_key(|(i, _)| *i);
+        match problem {
+            Some((_, why)) => CacheCheck::Damaged(why),
+            None => CacheCheck::Valid,
+        }
     }
 
     /// Writes the map of one frame atomically.
@@ -516,6 +604,22 @@ impl MapFolder {
         write_motion_probability(path, p)?;
         Ok(())
     }
+}
+
+/// What [`MapFolder::check_cache`] found.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum CacheCheck {
+    /// No maps of this job yet (no record, or an interrupted computation).
+    Absent,
+    /// The record and every map file match: the folder can be used as it is.
+    Valid,
+    /// A complete record whose files (or the record itself) do not match; why.
+    Damaged(String),
+}
+
+/// Size and FNV-64 checksum of a file's bytes, as recorded in a cache record.
+pub fn file_fingerprint(bytes: &[u8]) -> Value {
+    json!({"bytes": bytes.len(), "fnv64": Fnv64::of(bytes)})
 }
 
 /// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in

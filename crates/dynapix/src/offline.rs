@@ -30,7 +30,7 @@ use crate::cues::{RigidityJob, cached_rigidity};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
-use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
+use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps, file_fingerprint};
 use crate::method::{Method, Terms};
 use crate::poses::{FramePoses, PoseOrigin, as_written};
 use crate::progress::Progress;
@@ -119,6 +119,81 @@ fn writable(dir: &Path) -> bool {
     #[cfg(not(unix))]
     {
         dir.is_dir()
+    }
+}
+
+/// Writes a first pass into its cache folder `dir`: `trajectory.txt`, then `pass.json`
+/// (the completion record: the key document `doc`, the pose count, the trajectory file's
+/// size and checksum).
+fn write_first_pass_cache(dir: &Path, doc: &Value, out: &PassOutput) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| dynapix_io::IoError::io(dir, e))?;
+    let traj_path = dir.join("trajectory.txt");
+    out.trajectory.write_tum(&traj_path)?;
+    let bytes = std::fs::read(&traj_path).map_err(|e| dynapix_io::IoError::io(&traj_path, e))?;
+    let rec = json!({
+        "config": doc,
+        "status": "complete",
+        "stats": out.stats,
+        "poses": out.trajectory.len(),
+        "trajectory": file_fingerprint(&bytes),
+    });
+    dynapix_io::write_atomic(dir.join("pass.json"), rec.to_string().as_bytes())?;
+    Ok(())
+}
+
+/// The cached first-pass trajectory in `dir` when its record says `doc` and the file is the
+/// one recorded (size, checksum, pose count); `None` when there is none, with a warning when
+/// there is one that is damaged (the pass is then run again).
+fn read_cached_first_pass(dir: &Path, doc: &Value) -> Option<Trajectory> {
+    let rec_path = dir.join("pass.json");
+    let traj_path = dir.join("trajectory.txt");
+    let text = std::fs::read_to_string(&rec_path).ok()?;
+    let check = || -> std::result::Result<Trajectory, String> {
+        let rec: Value =
+            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", rec_path.display()))?;
+        if rec.get("config") != Some(&as_read_back(doc))
+            || rec.get("status").and_then(Value::as_str) != Some("complete")
+        {
+            return Err(format!(
+                "{} does not describe a complete first pass of this key",
+                rec_path.display()
+            ));
+        }
+        let (Some(poses), Some(expected)) = (
+            rec.get("poses").and_then(Value::as_u64),
+            rec.get("trajectory"),
+        ) else {
+            return Err(format!(
+                "{} lists no pose count or checksum (written by an older version)",
+                rec_path.display()
+            ));
+        };
+        let bytes =
+            std::fs::read(&traj_path).map_err(|e| format!("{}: {e}", traj_path.display()))?;
+        if &file_fingerprint(&bytes) != expected {
+            return Err(format!(
+                "{}: {} bytes, not the {} bytes with the checksum the record lists",
+                traj_path.display(),
+                bytes.len(),
+                expected.get("bytes").unwrap_or(&Value::Null)
+            ));
+        }
+        let t = Trajectory::read_tum(&traj_path).map_err(|e| e.to_string())?;
+        if t.len() as u64 != poses {
+            return Err(format!(
+                "{}: {} poses, the record says {poses}",
+                traj_path.display(),
+                t.len()
+            ));
+        }
+        Ok(t)
+    };
+    match check() {
+        Ok(t) => Some(t),
+        Err(why) => {
+            tracing::warn!("the cached first pass is damaged ({why}); running it again");
+            None
+        }
     }
 }
 
@@ -310,14 +385,7 @@ impl<'a> OfflineRunner<'a> {
         let doc = self.first_pass_record();
         let key = Fnv64::of(doc.to_string().as_bytes());
         let dir = self.cache_dir().join(format!("first-pass-{key}"));
-        let traj_path = dir.join("trajectory.txt");
-        let rec_path = dir.join("pass.json");
-        let recorded = std::fs::read_to_string(&rec_path)
-            .ok()
-            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
-        if recorded.as_ref().and_then(|r| r.get("config")) == Some(&as_read_back(&doc))
-            && let Ok(trajectory) = Trajectory::read_tum(&traj_path)
-        {
+        if let Some(trajectory) = read_cached_first_pass(&dir, &doc) {
             return Ok(FirstPassResult {
                 trajectory,
                 output: None,
@@ -349,10 +417,7 @@ impl<'a> OfflineRunner<'a> {
                 )?
             }
         };
-        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
-        out.trajectory.write_tum(&traj_path)?;
-        let rec = json!({"config": doc, "status": "complete", "stats": out.stats});
-        dynapix_io::write_atomic(&rec_path, rec.to_string().as_bytes())?;
+        write_first_pass_cache(&dir, &doc, &out)?;
         Ok(FirstPassResult {
             trajectory: as_written(&out.trajectory)?,
             record: json!({"source": "computed", "dir": dir, "key": key, "stats": out.stats}),

@@ -420,6 +420,85 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     assert_eq!(s.final_pass().unwrap().status.len(), 20);
 }
 
+/// Issue 36 item 3: every cached item is checked before use. A truncated map, a map swapped
+/// with another valid one and a truncated first-pass trajectory (also with a forged checksum)
+/// are found, recomputed, and the result is the one of the intact cache.
+#[test]
+fn a_damaged_cache_is_found_and_recomputed() {
+    use dynapix::maps::{CacheCheck, file_fingerprint};
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let seq = camera_only(tmp.path());
+    let mut config = Config::default();
+    config.sequence.max_frames = Some(30);
+    config.motion.flow = FlowPreset::Ultrafast;
+    let input = open(&seq, &config);
+    let first = offline(&config, &input, &cache);
+    let reference = first.final_pass().unwrap().trajectory.clone();
+    let dir = first.maps[0].folder.dir.clone();
+    let folder = MapFolder::new(&dir);
+    let rec: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("motion.json")).unwrap()).unwrap();
+    let key_doc = rec["config"].clone();
+    assert_eq!(folder.check_cache(&input, &key_doc), CacheCheck::Valid);
+    let map = |i: usize| folder.map_path(&input, i).unwrap();
+
+    // A truncated map: named, recomputed, same result.
+    let bytes = std::fs::read(map(5)).unwrap();
+    std::fs::write(map(5), &bytes[..bytes.len() / 2]).unwrap();
+    match folder.check_cache(&input, &key_doc) {
+        CacheCheck::Damaged(why) => {
+            let name = map(5).file_name().unwrap().to_string_lossy().into_owned();
+            assert!(why.contains(&name), "{why}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let r = offline(&config, &input, &cache);
+    assert_eq!(r.record["prob"]["source"], "computed");
+    assert_eq!(std::fs::read(map(5)).unwrap(), bytes);
+    assert_eq!(r.final_pass().unwrap().trajectory, reference);
+
+    // A map swapped with another valid one (both decode).
+    std::fs::copy(map(12), map(11)).unwrap();
+    assert!(matches!(
+        folder.check_cache(&input, &key_doc),
+        CacheCheck::Damaged(_)
+    ));
+    let r = offline(&config, &input, &cache);
+    assert_eq!(r.record["prob"]["source"], "computed");
+    assert_eq!(r.final_pass().unwrap().trajectory, reference);
+    assert_eq!(folder.check_cache(&input, &key_doc), CacheCheck::Valid);
+
+    // A truncated first-pass trajectory: run again, not used.
+    let fp = PathBuf::from(r.record["first_pass"]["dir"].as_str().unwrap());
+    let traj = fp.join("trajectory.txt");
+    let full = std::fs::read_to_string(&traj).unwrap();
+    let half: String = full
+        .lines()
+        .take(full.lines().count() / 2)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&traj, &half).unwrap();
+    let r = offline(&config, &input, &cache);
+    assert_eq!(r.record["first_pass"]["source"], "computed");
+    assert_eq!(std::fs::read_to_string(&traj).unwrap(), full);
+    assert_eq!(r.final_pass().unwrap().trajectory, reference);
+    // The same with a record whose checksum was made to match: the pose count tells.
+    std::fs::write(&traj, &half).unwrap();
+    let pass_json = fp.join("pass.json");
+    let mut rec: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&pass_json).unwrap()).unwrap();
+    rec["trajectory"] = file_fingerprint(half.as_bytes());
+    std::fs::write(&pass_json, rec.to_string()).unwrap();
+    let r = offline(&config, &input, &cache);
+    assert_eq!(r.record["first_pass"]["source"], "computed");
+    assert_eq!(r.final_pass().unwrap().trajectory, reference);
+    // Intact again: reused.
+    let r = offline(&config, &input, &cache);
+    assert_eq!(r.record["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(r.record["prob"]["source"], "cache (key matched)");
+}
+
 #[test]
 fn shared_rigidity_pairs_give_every_frame_the_map_it_gets_alone() {
     // `motion.rigidity.shared_pairs` (the default): the chunked run computes each pair once
