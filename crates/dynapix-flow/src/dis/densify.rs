@@ -26,6 +26,7 @@ pub(super) fn densify(
 /// which the compiler turns into whole-vector operations, and with (`isa`, when the CPU has
 /// it) or without the rows compiled for AVX2 ([`simd`]).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn densify_rows<const FIXED: bool>(
     isa: Option<dynapix_simd::Avx2>,
     ctx: &LevelCtx,
