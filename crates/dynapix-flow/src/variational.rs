@@ -195,7 +195,7 @@ impl RbSystem {
 }
 
 /// Refines the flow `(u, v)` from `i0` to `i1` in place. The per-row loops run compiled
-/// for AVX2 when the CPU has it (`simd`): element-wise `f32` arithmetic without fused
+/// for AVX2 when the CPU has it (`plane::simd`): element-wise `f32` arithmetic without fused
 /// multiply-add and reductions kept in order, so the same bits as the baseline build (test
 /// `avx2_refinement_equals_baseline`).
 pub fn refine(i0: &Plane, i1: &Plane, u: &mut Plane, v: &mut Plane, p: &VariationalParams) {

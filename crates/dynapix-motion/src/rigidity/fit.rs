@@ -168,7 +168,8 @@ pub fn adaptive_samples(inlier_fraction: f64, confidence: f64) -> usize {
 /// RANSAC for the rigid motion `B ≈ R·A + t` of `corr` (see the module documentation):
 /// up to [`RigidityParams::ransac_iterations`] seeded 3-point samples (fewer once
 /// [`RigidityParams::ransac_confidence`] is reached), degenerate ones skipped,
-/// each hypothesis scored by its number of inliers (`r² < chi2`, [`residual_squared`]; the
+/// each hypothesis scored by its number of inliers (`r² < chi2`,
+/// [`residual_squared`](super::residual_squared); the
 /// first best hypothesis wins ties), then [`RigidityParams::refine_rounds`] rounds of Kabsch
 /// on the inliers. `cam` gives the focal lengths of the residual.
 ///

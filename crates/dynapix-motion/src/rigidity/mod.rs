@@ -5,9 +5,9 @@
 //! sequence (Bonn `crowd`) follows the people. This cue needs none:
 //! 1. [`correspondences`]: on a grid, pixels of frame i with depth are matched to frame j by
 //!    dense optical flow i → j and lifted to 3-D in both cameras (through the undistorted
-//!    rays of [`PixelRays`], so lens distortion is handled). The target point sits on the
-//!    ray of the rounded target pixel plus the linear sub-pixel offset, at the depth of the
-//!    rounded target pixel.
+//!    rays of [`PixelRays`](dynapix_geometry::PixelRays), so lens distortion is handled).
+//!    The target point sits on the ray of the rounded target pixel plus the linear sub-pixel
+//!    offset, at the depth of the rounded target pixel.
 //! 2. [`fit_rigid_motion`]: RANSAC (seeded 3-point samples, Kabsch/Horn hypotheses) for the
 //!    rigid motion `B ≈ R·A + t` with the most correspondences whose normalised squared
 //!    residual ([`residual_squared`]: re-projection error in pixels over `σ_px`, depth error

@@ -10,7 +10,8 @@ use crate::MotionError;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct RigidityParams {
-    /// DIS preset of the flow from a frame to its neighbour (used by [`rigidity_probability`]).
+    /// DIS preset of the flow from a frame to its neighbour (used by
+    /// [`rigidity_probability`](super::rigidity_probability)).
     pub flow_preset: Preset,
     /// Width in pixels (160) below which the flow's finest computed pyramid level does not
     /// go: the flow is computed on the coarsest level at least this wide, unless the preset
@@ -31,7 +32,8 @@ pub struct RigidityParams {
     pub ransac_iterations: usize,
     /// RANSAC stops once, with this probability, at least one drawn sample was all inliers
     /// of the best motion so far (the standard adaptive count `ln(1 − p) / ln(1 − ŵ³)` for
-    /// inlier fraction ŵ), checked after every batch of [`RANSAC_BATCH`] samples so the result
+    /// inlier fraction ŵ), checked after every batch of [`RANSAC_BATCH`](super::RANSAC_BATCH)
+    /// samples so the result
     /// does not depend on the thread count; 1 draws all `ransac_iterations` samples.
     pub ransac_confidence: f64,
     /// Seed of the sampling.
@@ -69,9 +71,11 @@ pub struct RigidityParams {
     pub min_inlier_fraction: f64,
     /// Each frame pair's flow and fit computed once, for both frames (true, the default
     /// since 2026-12-04), instead of each frame computing its own flow to each neighbour
-    /// (false). The earlier frame `a` of a pair gets the residual of [`pair_residuals`]
+    /// (false). The earlier frame `a` of a pair gets the residual of
+    /// [`pair_residuals`](super::pair_residuals)
     /// directly; the later frame `b` gets the residual of the flow a → b turned around
-    /// ([`reverse_flow`]) under the inverse motion. Half the flows and fits: −9 to −13 % CPU
+    /// ([`reverse_flow`](super::reverse_flow)) under the inverse motion. Half the flows and fits:
+    /// −9 to −13 % CPU
     /// of an offline run on the Bonn window and fr1_xyz, with ATE means over three RANSAC
     /// seeds within +2 % there and +0.7 % on synth walking_xyz 640×480 s0–s2 (BENCHMARKS.md,
     /// "Each frame pair's rigidity flow once"). Offline sequence runs honour it; the

@@ -10,10 +10,11 @@ use super::pair::{Model, Pair};
 use super::params::RigidityParams;
 use crate::{FloatImage, MotionError};
 
-/// The normalised residual `r = √r²` ([`residual_squared`]) of every pixel of frame i under
+/// The normalised residual `r = √r²` ([`residual_squared`](super::residual_squared)) of every pixel
+/// of frame i under
 /// `motion` (camera i → camera j) with the flow i → j; NaN where the pixel has no depth, its
 /// flow target leaves the image or the rounded target has no depth (the same conditions as
-/// [`correspondences`]).
+/// [`correspondences`](super::correspondences)).
 pub fn dense_residual(
     depth_i: &FloatImage,
     depth_j: &FloatImage,

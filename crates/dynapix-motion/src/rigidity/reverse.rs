@@ -14,7 +14,8 @@ use crate::{FloatImage, MotionError, check_size};
 /// no holes). Where several pixels of a reach one pixel of b, the one nearest camera b after
 /// `motion` (a → b) wins, as in a depth buffer: depths compared in f32, those at or behind
 /// camera b as 0, ties to the first pixel in row order. Pixels of b that no pixel of a
-/// reaches get NaN flow, which [`dense_residual`] treats as no correspondence.
+/// reaches get NaN flow, which [`dense_residual`](super::dense_residual) treats as no
+/// correspondence.
 pub fn reverse_flow(
     flow: &FlowField,
     depth_a: &FloatImage,

@@ -12,13 +12,56 @@ use super::support::farthest_supported_lanes;
 use super::{DepthView, StaticDepth};
 use crate::{FloatImage, MotionError, check_size, pixel_rays};
 
-/// The static depth of the current view from its neighbour `views` (see the module
-/// documentation): every view is splatted at working resolution, then per pixel the farthest
-/// depth that `min_support` views agree on is kept, refined to the median of those views.
+/// Buffers of [`static_depth_with`], kept by the caller between frames: a sequence splats
+/// 24 views of the same size for every frame, and fresh buffers of that size come from the
+/// operating system zeroed, page by page, every time. The contents never leak into a result
+/// (every buffer is refilled before it is read).
+#[derive(Debug, Default)]
+pub struct StaticDepthWorkspace {
+    /// One splat (working-resolution depth, +∞ = no surface) per view.
+    splats: Vec<Vec<f32>>,
+}
+
+impl StaticDepthWorkspace {
+    /// An empty workspace; its buffers grow on first use.
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
+/// Runs `f` with the calling thread's workspace, kept between calls for callers that do not
+/// hold one. A nested call on the same thread (rayon may run another task while this one
+/// waits) finds the workspace taken and gets a fresh one, so it never blocks or fails; a
+/// result does not depend on which buffers it used.
+pub(super) fn with_thread_workspace<R>(f: impl FnOnce(&mut StaticDepthWorkspace) -> R) -> R {
+    thread_local! {
+        static WORKSPACE: std::cell::Cell<StaticDepthWorkspace> =
+            std::cell::Cell::new(StaticDepthWorkspace::default());
+    }
+    let mut ws = WORKSPACE.take();
+    let out = f(&mut ws);
+    WORKSPACE.set(ws);
+    out
+}
+
+/// [`static_depth_with`] with a workspace of the calling thread (kept between calls).
 pub fn static_depth(
     cam: &PinholeCamera,
     views: &[DepthView<'_>],
     params: &StaticDepthParams,
+) -> Result<StaticDepth, MotionError> {
+    with_thread_workspace(|ws| static_depth_with(cam, views, params, ws))
+}
+
+/// The static depth of the current view from its neighbour `views` (see the module
+/// documentation): every view is splatted at working resolution, then per pixel the farthest
+/// depth that `min_support` views agree on is kept, refined to the median of those views.
+/// The splats live in `ws` (see [`StaticDepthWorkspace`]).
+pub fn static_depth_with(
+    cam: &PinholeCamera,
+    views: &[DepthView<'_>],
+    params: &StaticDepthParams,
+    ws: &mut StaticDepthWorkspace,
 ) -> Result<StaticDepth, MotionError> {
     let _stage = tracing::info_span!(target: "dynapix::stage", "geometric: static depth").entered();
     params.validate()?;
@@ -43,7 +86,10 @@ pub fn static_depth(
     let n = (w * h) as usize;
     let rays = Rays::new(cam, factor, w, h);
     let table = pixel_rays(cam);
-    let mut splats = take_buffers(views.len());
+    if ws.splats.len() < views.len() {
+        ws.splats.resize_with(views.len(), Vec::new);
+    }
+    let splats = &mut ws.splats[..views.len()];
     splats.par_iter_mut().zip(views).for_each(|(out, v)| {
         out.clear();
         out.resize(n, f32::INFINITY);
@@ -58,8 +104,7 @@ pub fn static_depth(
     depth
         .par_chunks_mut(wu)
         .enumerate()
-        .for_each(|(j, row)| static_depth_row(&splats, &network, params, j, row));
-    return_buffers(splats);
+        .for_each(|(j, row)| static_depth_row(&*splats, &network, params, j, row));
     Ok(StaticDepth {
         depth: FloatImage::from_raw(w, h, depth).unwrap_or_else(|| FloatImage::new(w, h)),
         factor,
@@ -199,28 +244,6 @@ fn static_depth_row_24(
         let lanes = farthest_supported_lanes(&cols, params);
         row[i0..i0 + m].copy_from_slice(&lanes[..m]);
     }
-}
-
-/// Splat buffers kept between calls of [`static_depth`]: a sequence splats 24 views of the
-/// same size for every frame, and fresh buffers of that size come from the operating system
-/// zeroed, page by page, every time.
-static SPLAT_BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
-
-/// Largest number of splat buffers kept (two frames of 24 views in flight).
-const MAX_KEPT_BUFFERS: usize = 64;
-
-fn take_buffers(k: usize) -> Vec<Vec<f32>> {
-    let mut pool = SPLAT_BUFFERS.lock().unwrap_or_else(|e| e.into_inner());
-    let keep = pool.len().saturating_sub(k);
-    let mut out = pool.split_off(keep);
-    out.resize_with(k, Vec::new);
-    out
-}
-
-fn return_buffers(mut bufs: Vec<Vec<f32>>) {
-    let mut pool = SPLAT_BUFFERS.lock().unwrap_or_else(|e| e.into_inner());
-    bufs.truncate(MAX_KEPT_BUFFERS.saturating_sub(pool.len()));
-    pool.append(&mut bufs);
 }
 
 /// Indices of the neighbour views of frame `t` among frames with timestamps `stamps`: frames
@@ -367,5 +390,33 @@ mod tests {
         assert_eq!(*v.last().unwrap(), 210);
         let v = select_views(&stamps, 0, |s| s % 2 == 0, &p);
         assert!(v.iter().all(|&s| s % 2 == 0 && s > 0 && s <= 60));
+    }
+
+    #[test]
+    fn a_reused_workspace_gives_the_bytes_of_a_fresh_one() {
+        // Views of different sizes and counts through one workspace: leftovers of a larger
+        // or earlier call never reach a result.
+        let p = params();
+        let bits = |sd: &StaticDepth| -> Vec<u32> {
+            sd.depth.as_raw().iter().map(|v| v.to_bits()).collect()
+        };
+        let mut ws = StaticDepthWorkspace::new();
+        for (k, (w, h)) in [(80u32, 60u32), (64, 48), (80, 60)].into_iter().enumerate() {
+            let c = cam(w, h);
+            let depths: Vec<WorkingDepth> = (0..[24, 5, 7][k])
+                .map(|v| {
+                    let block = (v % 3 != 0).then_some((10 + v as u32, 8, 30, 30, 1.0));
+                    WorkingDepth::new(&wall(w, h, 2.0 + 0.01 * v as f32, block), &p)
+                })
+                .collect();
+            let views = same_pose_views(&depths);
+            let fresh = static_depth_with(&c, &views, &p, &mut StaticDepthWorkspace::new());
+            let fresh = fresh.unwrap();
+            let reused = static_depth_with(&c, &views, &p, &mut ws).unwrap();
+            let threaded = static_depth(&c, &views, &p).unwrap();
+            assert!(fresh.depth.as_raw().iter().any(|v| v.is_finite()));
+            assert_eq!(bits(&reused), bits(&fresh), "call {k}");
+            assert_eq!(bits(&threaded), bits(&fresh), "call {k}");
+        }
     }
 }

@@ -5,7 +5,7 @@
 use dynapix_geometry::camera::PinholeCamera;
 use dynapix_geometry::se3::Se3;
 
-use super::depth::{select_views, static_depth};
+use super::depth::{StaticDepthWorkspace, select_views, static_depth_with, with_thread_workspace};
 use super::params::StaticDepthParams;
 use super::{DepthView, StaticDepth, WorkingDepth};
 use crate::{FloatImage, MotionError, check_size};
@@ -150,6 +150,8 @@ fn geometric_term_body(
 /// The geometric cue of frame `t` of a sequence: neighbour views chosen by [`select_views`]
 /// among frames with a pose, splatted with the relative poses from `poses_wc` (camera-to-world,
 /// `None` = unknown). A frame without a pose, or without usable neighbours, gets P = 0.
+/// The splats live in a workspace of the calling thread ([`geometric_frame_with`] takes
+/// the caller's).
 pub fn geometric_frame(
     cam: &PinholeCamera,
     t: usize,
@@ -157,6 +159,19 @@ pub fn geometric_frame(
     poses_wc: &[Option<Se3>],
     depths: &[WorkingDepth],
     params: &StaticDepthParams,
+) -> Result<FloatImage, MotionError> {
+    with_thread_workspace(|ws| geometric_frame_with(cam, t, stamps, poses_wc, depths, params, ws))
+}
+
+/// [`geometric_frame`] with the splat buffers in the caller's `ws`.
+pub fn geometric_frame_with(
+    cam: &PinholeCamera,
+    t: usize,
+    stamps: &[f64],
+    poses_wc: &[Option<Se3>],
+    depths: &[WorkingDepth],
+    params: &StaticDepthParams,
+    ws: &mut StaticDepthWorkspace,
 ) -> Result<FloatImage, MotionError> {
     let (Some(cur), Some(Some(twc))) = (depths.get(t), poses_wc.get(t)) else {
         return Ok(FloatImage::new(cam.width, cam.height));
@@ -175,7 +190,7 @@ pub fn geometric_frame(
     if views.is_empty() {
         return Ok(FloatImage::new(cam.width, cam.height));
     }
-    let sd = static_depth(cam, &views, params)?;
+    let sd = static_depth_with(cam, &views, params, ws)?;
     geometric_term(cur, &sd, params)
 }
 

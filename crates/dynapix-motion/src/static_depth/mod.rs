@@ -26,8 +26,8 @@ mod params;
 mod splat;
 mod support;
 
-pub use depth::{select_views, static_depth};
-pub use geometric::{geometric_frame, geometric_term};
+pub use depth::{StaticDepthWorkspace, select_views, static_depth, static_depth_with};
+pub use geometric::{geometric_frame, geometric_frame_with, geometric_term};
 pub use params::StaticDepthParams;
 
 use dynapix_geometry::se3::Se3;
