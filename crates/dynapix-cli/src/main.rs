@@ -69,6 +69,8 @@ fn main() -> std::process::ExitCode {
             .with(
                 tracing_subscriber::fmt::layer()
                     .with_writer(std::io::stderr)
+                    // Colour codes only for a terminal: a log file gets plain `WARN` lines.
+                    .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
                     .with_filter(filter),
             )
             .with(profiler.layer())

@@ -85,6 +85,14 @@ pub enum Error {
     /// A SLAM pass stopped part-way; what it had computed is kept.
     #[error("{}: {}", .0.label, .0.error)]
     Stopped(Box<StoppedPass>),
+    /// The first pass of a DynaPix run tracked no frame, so there are no poses for the
+    /// motion maps; it carries that pass ([`crate::OfflineRunner::run`] ends the run with it
+    /// instead of failing).
+    #[error(
+        "the first pass tracked no frame: no poses for the motion maps (all-zero depth, black \
+         or featureless frames, or a camera that does not match the images?)"
+    )]
+    NothingTracked(Box<crate::offline::FirstPassResult>),
     /// A file that is not one of the formats above (`motion.json`, run records).
     #[error("{}: {message}", path.display())]
     File {

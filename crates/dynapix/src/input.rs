@@ -655,7 +655,32 @@ impl Input {
             "last_t": s.frames.last().map(|f| f.t),
             "depth_factor": s.depth_factor,
             "groundtruth": s.groundtruth.is_some(),
+            "groundtruth_convention": self.ground_truth_record(),
             "camera": self.camera.record(),
+        })
+    }
+
+    /// Which convention the sequence's `groundtruth.txt` was read in (`null` without one):
+    /// what the file holds, how it was used, and the rule that chose it.
+    pub fn ground_truth_record(&self) -> serde_json::Value {
+        let s = &self.sequence;
+        if s.groundtruth.is_none() {
+            return serde_json::Value::Null;
+        }
+        let path = s.dir.join("groundtruth.txt");
+        let convention = dynapix_io::GroundTruthConvention::of_file(&path);
+        let used = dynapix_io::GroundTruth {
+            trajectory: dynapix_io::Trajectory::default(),
+            convention,
+            frame: dynapix_io::GtFrame::Camera,
+        };
+        serde_json::json!({
+            "file": path,
+            "file_holds": convention.as_str(),
+            "used_as": used.description(),
+            "rule": "the groundtruth.txt of a folder named rgbd_bonn_* (links resolved) holds \
+                     Bonn marker-body poses and is converted to camera poses; any other file \
+                     holds camera poses",
         })
     }
 }

@@ -423,7 +423,13 @@ impl<'a> MapJob<'a> {
                                 paper: None,
                             })
                         })
-                        .map_err(|e| Error::Input(format!("motion maps: frame {i}: {e}")))
+                        // Typed, so the file that failed (e.g. in the cache) stays known.
+                        .map_err(|e| {
+                            Error::Motion(dynapix_motion::SequenceError::Consumer {
+                                index: i,
+                                source: e,
+                            })
+                        })
                 })
                 .collect::<Result<Vec<R>>>()?;
             for (&i, r) in part.iter().zip(out) {

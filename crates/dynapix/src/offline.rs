@@ -100,6 +100,30 @@ fn user_cache_root() -> PathBuf {
         .unwrap_or_else(std::env::temp_dir)
 }
 
+/// True when the user's cache directory is the temporary directory (no `HOME` nor
+/// `XDG_CACHE_HOME`).
+fn user_cache_is_temporary() -> bool {
+    user_cache_root() == std::env::temp_dir()
+}
+
+/// Checks, before any work, that the cache folder `dir` can be written (created when
+/// missing), so an unwritable cache stops a run before it starts, not after its first pass.
+pub fn check_cache_dir(dir: &Path) -> Result<()> {
+    dynapix_io::output::check_writable_dir(dir).map_err(|e| {
+        Error::Input(format!(
+            "the cache {} cannot be used: {}; pass --cache DIR with a writable folder",
+            dir.display(),
+            e.reason()
+        ))
+    })
+}
+
+/// Whether `dir` may be written by this process and is not marked read-only (see
+/// [`writable`]): a sequence folder that is not is never written into.
+pub fn folder_writable(dir: &Path) -> bool {
+    writable(dir)
+}
+
 /// Whether this process may create files in `dir` (the effective permissions, read-only
 /// mounts included), and the folder is not marked read-only for everyone (a privileged user
 /// could write there, but the dataset says it is not to be written).
@@ -248,13 +272,25 @@ impl<'a> OfflineRunner<'a> {
         if options.cache_dir.is_none() {
             let dir = default_cache_dir(&input.sequence.dir);
             if !dir.starts_with(&input.sequence.dir) {
-                tracing::info!(
-                    "{} is not writable: caching in {}",
-                    input.sequence.dir.display(),
-                    dir.display()
-                );
+                if user_cache_is_temporary() {
+                    tracing::warn!(
+                        "{} is not writable and neither HOME nor XDG_CACHE_HOME is set: caching \
+                         in {} (pass --cache DIR to keep the cache elsewhere)",
+                        input.sequence.dir.display(),
+                        dir.display()
+                    );
+                } else {
+                    tracing::info!(
+                        "{} is not writable: caching in {}",
+                        input.sequence.dir.display(),
+                        dir.display()
+                    );
+                }
             }
             options.cache_dir = Some(dir);
+        }
+        if let Some(dir) = &options.cache_dir {
+            check_cache_dir(dir)?;
         }
         let r = Self {
             config,
@@ -508,6 +544,9 @@ impl<'a> OfflineRunner<'a> {
         } else {
             None
         };
+        if let Some(f) = first.as_ref().filter(|f| f.trajectory.is_empty()) {
+            return Err(Error::NothingTracked(Box::new(f.clone())));
+        }
         let poses = self.poses_for(1, first.as_ref().map(|f| &f.trajectory))?;
         let maps = self.maps_for(1, &poses, progress)?;
         Ok((first, Some(maps)))
@@ -533,6 +572,45 @@ impl<'a> OfflineRunner<'a> {
         out
     }
 
+    /// The run that ends with its first pass because that pass tracked no frame: the first
+    /// pass (every frame without a pose) is the result, with no maps and no weighted pass, so
+    /// the caller writes its trajectory and status like any run that tracked nothing.
+    fn untracked_output(&self, mut record: Value, first: FirstPassResult) -> OfflineOutput {
+        let pass = first.output.clone().unwrap_or_else(|| PassOutput {
+            trajectory: Trajectory::default(),
+            status: self
+                .input
+                .timestamps()
+                .into_iter()
+                .map(|t| dynapix_io::StampedStatus {
+                    t,
+                    status: dynapix_io::FrameStatus::NotInitialized,
+                })
+                .collect(),
+            keyframes: Trajectory::default(),
+            loops: Vec::new(),
+            timings: Vec::new(),
+            stats: crate::slam::PassStats {
+                frames: self.input.len(),
+                ..Default::default()
+            },
+            skipped: Vec::new(),
+        });
+        record["first_pass"] = first.record.clone();
+        record["prob"] = Value::Null;
+        record["nothing_tracked"] = json!(
+            "the first pass tracked no frame: no motion maps and no weighted pass; the result \
+             is the first pass"
+        );
+        record["passes"] = json!([{"maps": null, "stats": pass.stats}]);
+        OfflineOutput {
+            first_pass: Some(first),
+            maps: Vec::new(),
+            passes: vec![pass],
+            record,
+        }
+    }
+
     fn run_passes(&self, seed: u64, progress: &dyn Progress) -> Result<OfflineOutput> {
         let method = self.config.method;
         let mut record = self.base_record();
@@ -546,7 +624,11 @@ impl<'a> OfflineRunner<'a> {
                 record,
             });
         }
-        let (first, first_maps) = self.prepare(progress)?;
+        let (first, first_maps) = match self.prepare(progress) {
+            Ok(p) => p,
+            Err(Error::NothingTracked(first)) => return Ok(self.untracked_output(record, *first)),
+            Err(e) => return Err(e),
+        };
         let mut maps = Vec::new();
         let mut passes: Vec<PassOutput> = Vec::new();
         let n = self.config.passes.weighted;

@@ -255,6 +255,37 @@ fn library_error(e: &anyhow::Error) -> Option<&dynapix::Error> {
     e.chain().find_map(|c| c.downcast_ref::<dynapix::Error>())
 }
 
+/// The files named by the library errors in the chain of `e` (a stopped pass's cause
+/// included).
+fn error_paths(e: &anyhow::Error) -> Vec<PathBuf> {
+    fn of(e: &dynapix::Error, out: &mut Vec<PathBuf>) {
+        match e {
+            dynapix::Error::Io(io) => out.push(io.path().to_path_buf()),
+            dynapix::Error::File { path, .. } => out.push(path.clone()),
+            dynapix::Error::Stopped(s) => of(&s.error, out),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    for c in e.chain() {
+        if let Some(l) = c.downcast_ref::<dynapix::Error>() {
+            of(l, &mut out);
+        } else if let Some(io) = c.downcast_ref::<dynapix_io::IoError>() {
+            out.push(io.path().to_path_buf());
+        }
+    }
+    out
+}
+
+/// The file inside the cache folder `cache` that made `e`, when the cache is at fault: such
+/// a run must not replace an earlier result with a partial one.
+pub fn cache_fault(e: &anyhow::Error, cache: &Path) -> Option<PathBuf> {
+    let cache = resolve(cache);
+    error_paths(e)
+        .into_iter()
+        .find(|p| resolve(p).starts_with(&cache))
+}
+
 /// What a pass had computed when `e` stopped it.
 pub fn partial_pass(e: &anyhow::Error) -> Option<&PassOutput> {
     library_error(e).and_then(dynapix::Error::partial_pass)

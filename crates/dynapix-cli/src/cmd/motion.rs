@@ -184,12 +184,30 @@ fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
     Ok(c)
 }
 
+/// `motion` writes its maps into the sequence (`prob/`, `prob_vis/`, `background_rec/`):
+/// a sequence folder (or its `prob/`) that is read-only, or marked so, is refused before any
+/// work, even for a user who could write there anyway.
+fn refuse_read_only(seq_dir: &std::path::Path, prob_dir: &std::path::Path) -> anyhow::Result<()> {
+    for dir in [seq_dir, prob_dir] {
+        if dir.exists() && !dynapix::offline::folder_writable(dir) {
+            bail!(
+                "{} is read-only (or marked so); `motion` writes its maps into the sequence \
+                 folder, so it leaves this one alone: copy the sequence to a writable place, \
+                 or use `dynapix run`, which caches its maps elsewhere",
+                dir.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Runs `dynapix motion`.
 pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let started = Instant::now();
     let config = config(&args)?;
     let input = args.seq.open(&config)?;
     let seq = &input.sequence;
+    refuse_read_only(&seq.dir, &seq.prob_dir)?;
     let n = input.len();
     let noise = match &args.pose_noise {
         None => None,

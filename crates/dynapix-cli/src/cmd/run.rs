@@ -195,6 +195,8 @@ pub struct RunOutcome {
     pub ate: Vec<Option<f64>>,
     /// Tracking rate of each run, when ground truth exists.
     pub tracking_rate: Vec<Option<f64>>,
+    /// Why each run has no ATE, when it has none (no ground truth, too few frames, …).
+    pub no_ate: Vec<String>,
     /// Folder of the probability maps of the final pass (None for ORB-SLAM2 and online).
     pub prob_dir: Option<PathBuf>,
     /// The final pass's trajectory as written (a first pass for a later DynaPix run).
@@ -317,6 +319,18 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             Ok(outcome)
         }
         Err(e) => {
+            if let Some(file) = super::common::cache_fault(&e, &runner.cache_dir()) {
+                // A cache fault is no result: the earlier one stays (issue 36).
+                drop(staged);
+                eprintln!(
+                    "the run stopped on its cache ({}); {} keeps its earlier content. Remove \
+                     the cache folder {} (or pass another --cache) and run again",
+                    file.display(),
+                    spec.out.display(),
+                    runner.cache_dir().display()
+                );
+                return Err(e);
+            }
             merge(&mut record, incomplete(&e));
             write_json(&staged.path().join("run.json"), &record)?;
             let out = staged.commit()?;
@@ -342,6 +356,7 @@ fn execute_into(
         trajectory: spec.out.join("trajectory.txt"),
         ate: Vec::new(),
         tracking_rate: Vec::new(),
+        no_ate: Vec::new(),
         prob_dir: None,
         written_trajectory: None,
         floor: None,
@@ -402,11 +417,25 @@ fn execute_into(
         outcome
             .tracking_rate
             .push(ev.as_ref().and_then(|r| r.result.tracking_rate));
+        outcome.no_ate.push(no_ate_reason(ev.as_ref()));
         outcome.floor = ev.as_ref().and_then(|r| r.motionless_floor_m);
         runs.push(stats);
     }
     record["results"] = json!(runs);
     Ok(outcome)
+}
+
+/// Why a run has no ATE: no ground truth, or the evaluation's error (a sequence of one or two
+/// frames, no overlap in time, …).
+fn no_ate_reason(ev: Option<&dynapix_eval::files::RunEvaluation>) -> String {
+    match ev {
+        None => "no ground truth".into(),
+        Some(r) => r
+            .result
+            .error
+            .clone()
+            .unwrap_or_else(|| "no ATE computed".into()),
+    }
 }
 
 /// Runs `config` online over `input` and writes its outputs into `out`, replaced as a whole
@@ -604,6 +633,7 @@ fn online_into(
         trajectory: dir.join("trajectory.txt"),
         ate: vec![ev.as_ref().and_then(|r| r.result.ate_rmse_m)],
         tracking_rate: vec![ev.as_ref().and_then(|r| r.result.tracking_rate)],
+        no_ate: vec![no_ate_reason(ev.as_ref())],
         floor: ev.as_ref().and_then(|r| r.motionless_floor_m),
         earlier_passes: Vec::new(),
         tracked: vec![tracked],
@@ -696,7 +726,10 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 "{method} run {k}: ATE RMSE {a:.4} m, tracking rate {:.1} %{floor}{skipped}",
                 t * 100.0
             ),
-            _ => println!("{method} run {k}: no ATE (no ground truth or no overlap){skipped}"),
+            _ => println!(
+                "{method} run {k}: no ATE ({}){skipped}",
+                o.no_ate.get(k).map_or("no ground truth", String::as_str)
+            ),
         }
     }
     println!("trajectory: {}", o.trajectory.display());
