@@ -15,6 +15,7 @@ pub mod precomputed;
 pub mod variational;
 pub mod viz;
 pub mod warp;
+mod validate;
 
 pub use dis::{DisFlow, DisParams, Preset};
 pub use flo::{read_flo, write_flo};

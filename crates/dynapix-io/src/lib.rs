@@ -7,6 +7,8 @@
 //!   per-frame status file ([`FrameStatus`]).
 //! - [`tum`]: `rgb.txt`/`depth.txt` lists, [`associate`] (exactly like `associate.py`),
 //!   4-column association files.
+//! - [`depth`]: which raw depth values are measurements ([`DepthValidity`]: the sensor's
+//!   saturation value and implausible depths are read as missing).
 //! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
 //!   lossless PFM).
 //! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade bonn`, the camera
@@ -27,6 +29,7 @@
 
 pub mod atomic;
 pub mod datasets;
+pub mod depth;
 pub mod error;
 pub mod ground_truth;
 pub mod images;
@@ -42,6 +45,7 @@ pub mod weights;
 
 pub use atomic::write_atomic;
 pub use datasets::Dataset;
+pub use depth::DepthValidity;
 pub use error::{IoError, Result};
 pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
@@ -49,7 +53,8 @@ pub use ground_truth::{
 pub use images::{DepthImage, Gray16Image, ProbMap};
 pub use output::OutputFolder;
 pub use sequence::{
-    FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions, SequenceWriter,
+    FrameData, FrameInfo, FrameList, InvalidDepth, Layout, Pairing, Sequence, SequenceOptions,
+    SequenceWriter,
 };
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};

@@ -34,6 +34,7 @@ pub mod rigidity;
 pub mod sequence;
 pub mod splat;
 pub mod static_depth;
+mod validate;
 
 #[cfg(test)]
 pub(crate) mod testutil;

@@ -13,4 +13,5 @@ pub mod orb;
 pub mod persist;
 pub mod system;
 pub mod tracking;
+mod validate;
 pub mod vocab;

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
-use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
+use dynapix_io::images::{read_depth_raw, read_rgb, write_motion_probability};
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
     RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
@@ -84,7 +84,7 @@ impl FrameLoader for SequenceLoader<'_> {
                 .depth_bg
                 .as_ref()
                 .ok_or_else(|| format!("no background depth for {}", info.rgb.display()))?;
-            read_depth(p, self.input.sequence.depth_factor)?
+            self.input.sequence.read_depth(p)?
         } else {
             frame.depth.clone()
         };

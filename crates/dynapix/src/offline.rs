@@ -241,7 +241,7 @@ impl<'a> OfflineRunner<'a> {
                 dir: &m.folder.dir,
                 threshold: method
                     .thresholds()
-                    .then_some(config.slam.params.map.dynapix.gamma_add),
+                    .then_some(config.dynapix.gamma_add),
                 allow_missing: self.options.allow_missing_maps,
             },
         };
