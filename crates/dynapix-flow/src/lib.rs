@@ -12,10 +12,10 @@ pub mod metrics;
 pub mod pairs;
 pub mod plane;
 pub mod precomputed;
+mod validate;
 pub mod variational;
 pub mod viz;
 pub mod warp;
-mod validate;
 
 pub use dis::{DisFlow, DisParams, Preset};
 pub use flo::{read_flo, write_flo};

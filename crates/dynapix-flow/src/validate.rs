@@ -15,7 +15,12 @@ const MAX_ITERATIONS: usize = 1000;
 
 impl Validate for VariationalParams {
     fn validate(&self) -> Checked {
-        range("fixed_point_iterations", self.fixed_point_iterations, 0, 100)?;
+        range(
+            "fixed_point_iterations",
+            self.fixed_point_iterations,
+            0,
+            100,
+        )?;
         range("sor_iterations", self.sor_iterations, 0, 100)?;
         if !(self.omega > 0.0 && self.omega < 2.0) {
             return Err(InvalidParam::new(

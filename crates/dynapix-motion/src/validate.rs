@@ -4,10 +4,14 @@
 //! and probabilities in [0, 1], thresholds and scales positive, and the pairs that must be
 //! ordered ordered (`clip_lo < clip_hi`, `r0 < r1`). [`StaticDepthParams`] and
 //! [`RigidityParams`] keep their own `validate` (the motion error type); their
-//! [`Validate`] implementation runs it and adds the upper bounds.
+//! [`Validate`] implementation checks each field's range first, so the error names the field
+//! that is out of range, then runs it for the rules between fields.
 
-use dynapix_params::{Checked, InvalidParam, Validate, above, each, nested, optional, probability, range};
+use dynapix_params::{
+    Checked, InvalidParam, Validate, above, each, nested, optional, probability, range,
+};
 
+use crate::MotionError;
 use crate::background::{ReconstructParams, Statistic};
 use crate::movable::{MinExclusion, MovableParams};
 use crate::moving::MovingParams;
@@ -15,7 +19,6 @@ use crate::pipeline::MotionParams;
 use crate::rigidity::RigidityParams;
 use crate::splat::SplatParams;
 use crate::static_depth::StaticDepthParams;
-use crate::MotionError;
 
 /// Largest neighbour frame offset (2 s at 30 frames/s).
 pub const MAX_OFFSET: i64 = 60;
@@ -55,10 +58,7 @@ impl Validate for MovableParams {
         if self.clip_hi <= self.clip_lo {
             return Err(InvalidParam::new(
                 "clip_hi",
-                format!(
-                    "must exceed clip_lo ({} ≤ {})",
-                    self.clip_hi, self.clip_lo
-                ),
+                format!("must exceed clip_lo ({} ≤ {})", self.clip_hi, self.clip_lo),
             ));
         }
         above("max_depth", self.max_depth, 0.0, 1000.0)?;
@@ -132,7 +132,6 @@ impl Validate for ReconstructParams {
 
 impl Validate for StaticDepthParams {
     fn validate(&self) -> Checked {
-        StaticDepthParams::validate(self).map_err(keyed)?;
         range("working_width", self.working_width, 1, MAX_WIDTH)?;
         range("window_s", self.window_s, 0.0, 3600.0)?;
         range("max_views", self.max_views, 1, 1000)?;
@@ -143,13 +142,13 @@ impl Validate for StaticDepthParams {
         range("align_radius", self.align_radius, 0, MAX_RADIUS)?;
         range("open_radius", self.open_radius, 0, MAX_RADIUS)?;
         range("dilate_radius", self.dilate_radius, 0, MAX_RADIUS)?;
-        range("fill_steps", self.fill_steps, 0, 256)
+        range("fill_steps", self.fill_steps, 0, 256)?;
+        StaticDepthParams::validate(self).map_err(keyed)
     }
 }
 
 impl Validate for RigidityParams {
     fn validate(&self) -> Checked {
-        RigidityParams::validate(self).map_err(keyed)?;
         range("flow_working_width", self.flow_working_width, 0, MAX_WIDTH)?;
         range("stride", self.stride, 1, 256)?;
         range("min_depth", self.min_depth, 0.0, 100.0)?;
@@ -170,7 +169,8 @@ impl Validate for RigidityParams {
         range("min_projected_depth", self.min_projected_depth, 0.0, 100.0)?;
         range("r0", self.r0, 0.0, 1e6)?;
         range("r1", self.r1, 0.0, 1e6)?;
-        offsets("offsets", &self.offsets)
+        offsets("offsets", &self.offsets)?;
+        RigidityParams::validate(self).map_err(keyed)
     }
 }
 

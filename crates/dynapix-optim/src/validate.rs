@@ -17,15 +17,35 @@ impl Validate for PoseOnlyParams {
         above("chi2_mono", self.chi2_mono, 0.0, MAX_CHI2)?;
         above("chi2_stereo", self.chi2_stereo, 0.0, MAX_CHI2)?;
         range("robust_rounds", self.robust_rounds, 0, 100)?;
-        range("min_edges_for_rounds", self.min_edges_for_rounds, 0, 1_000_000)
+        range(
+            "min_edges_for_rounds",
+            self.min_edges_for_rounds,
+            0,
+            1_000_000,
+        )
     }
 }
 
 impl Validate for BaParams {
     fn validate(&self) -> Checked {
-        range("iterations_robust", self.iterations_robust, 0, MAX_ITERATIONS)?;
-        range("iterations_refine", self.iterations_refine, 0, MAX_ITERATIONS)?;
-        below("min_relative_decrease", self.min_relative_decrease, 0.0, 1.0)?;
+        range(
+            "iterations_robust",
+            self.iterations_robust,
+            0,
+            MAX_ITERATIONS,
+        )?;
+        range(
+            "iterations_refine",
+            self.iterations_refine,
+            0,
+            MAX_ITERATIONS,
+        )?;
+        below(
+            "min_relative_decrease",
+            self.min_relative_decrease,
+            0.0,
+            1.0,
+        )?;
         above("chi2_mono", self.chi2_mono, 0.0, MAX_CHI2)?;
         above("chi2_stereo", self.chi2_stereo, 0.0, MAX_CHI2)
     }

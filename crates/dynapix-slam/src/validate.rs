@@ -87,7 +87,12 @@ impl Validate for TrackingParams {
         range("min_frames", self.min_frames, 0, MAX_FRAMES)?;
         range("kf_new_points", self.kf_new_points, 0, MAX_COUNT)?;
         range("bow_group_depth", self.bow_group_depth, 0, MAX_BOW_DEPTH)?;
-        range("reset_max_keyframes", self.reset_max_keyframes, 0, 1_000_000)?;
+        range(
+            "reset_max_keyframes",
+            self.reset_max_keyframes,
+            0,
+            1_000_000,
+        )?;
         nested("pose", &self.pose)?;
         nested("matcher", &self.matcher)?;
         nested("reloc", &self.reloc)?;
@@ -203,7 +208,12 @@ impl Validate for DetectionParams {
         )?;
         range("refine_iterations", self.refine_iterations, 0, 1000)?;
         range("refine_min_pairs", self.refine_min_pairs, 0, MAX_COUNT)?;
-        range("min_refined_inliers", self.min_refined_inliers, 0, MAX_COUNT)?;
+        range(
+            "min_refined_inliers",
+            self.min_refined_inliers,
+            0,
+            MAX_COUNT,
+        )?;
         above("projection_radius", self.projection_radius, 0.0, MAX_RADIUS)?;
         range("min_total_matches", self.min_total_matches, 0, MAX_COUNT)?;
         nested("matcher", &self.matcher)

@@ -29,9 +29,7 @@ use dynapix_io::Pairing;
 use dynapix_motion::{
     Backgrounds, MotionParams, ReconstructParams, RigidityParams, StaticDepthParams, Variant,
 };
-use dynapix_params::{
-    Checked, InvalidParam, Validate, above, each, nested, optional, range,
-};
+use dynapix_params::{Checked, InvalidParam, Validate, above, each, nested, optional, range};
 use dynapix_slam::dynapix::{DynaPixParams, ProbUpdate};
 use dynapix_slam::system::SystemParams;
 use serde::{Deserialize, Serialize};
@@ -112,7 +110,8 @@ impl Default for DynaPixConfig {
 
 impl Validate for DynaPixConfig {
     fn validate(&self) -> Checked {
-        self.params(dynapix_slam::dynapix::Weighting::Paper).validate()
+        self.params(dynapix_slam::dynapix::Weighting::Paper)
+            .validate()
     }
 }
 
@@ -939,10 +938,7 @@ impl<'de> serde::de::Visitor<'de> for Strict {
     fn visit_unit<E>(self) -> std::result::Result<Value, E> {
         Ok(Value::Null)
     }
-    fn visit_some<D: serde::Deserializer<'de>>(
-        self,
-        d: D,
-    ) -> std::result::Result<Value, D::Error> {
+    fn visit_some<D: serde::Deserializer<'de>>(self, d: D) -> std::result::Result<Value, D::Error> {
         serde::de::DeserializeSeed::deserialize(self, d)
     }
     fn visit_seq<A: serde::de::SeqAccess<'de>>(
@@ -1301,7 +1297,10 @@ mod tests {
         let mut c = Config::default();
         c.dynapix.update = dynapix_slam::dynapix::ProbUpdate::Ema { alpha: 2.0 };
         let e = c.validate().unwrap_err().to_string();
-        assert!(e.contains("dynapix.update.ema.alpha must lie in (0, 1]"), "{e}");
+        assert!(
+            e.contains("dynapix.update.ema.alpha must lie in (0, 1]"),
+            "{e}"
+        );
         c.dynapix.update = dynapix_slam::dynapix::ProbUpdate::Ema { alpha: f32::NAN };
         assert!(c.validate().is_err());
         let c = Config::from_yaml_str("sequence: {skip_bad_frames: true}\n").unwrap();
@@ -1364,7 +1363,9 @@ mod tests {
             numeric_leaves(&base, "", &mut leaves);
             assert!(leaves.len() > 150, "{}", leaves.len());
             for (key, pointer) in &leaves {
-                let integer = base.pointer(pointer).is_some_and(|v| v.is_i64() || v.is_u64());
+                let integer = base
+                    .pointer(pointer)
+                    .is_some_and(|v| v.is_i64() || v.is_u64());
                 for sign in [1i64, -1] {
                     if sign > 0 && ANY_U64.contains(&key.as_str()) {
                         continue;
@@ -1456,7 +1457,10 @@ mod tests {
                 r#"{"motion": {"params": {"offsets": [1, "x"]}}}"#,
                 "motion.params.offsets",
             ),
-            (r#"{"sequence": {"skip_bad_frames": 1}}"#, "sequence.skip_bad_frames"),
+            (
+                r#"{"sequence": {"skip_bad_frames": 1}}"#,
+                "sequence.skip_bad_frames",
+            ),
         ] {
             let e = Config::from_json_str(doc).unwrap_err().to_string();
             assert!(e.contains(key), "{doc}: {e}");
@@ -1476,10 +1480,8 @@ mod tests {
             r,
             DynaPixParams::new(dynapix_slam::dynapix::Weighting::Reference)
         );
-        let c = Config::from_yaml_str(
-            "dynapix: {gamma_add: 0.02, gamma_del: 0.3, update: max}\n",
-        )
-        .unwrap();
+        let c = Config::from_yaml_str("dynapix: {gamma_add: 0.02, gamma_del: 0.3, update: max}\n")
+            .unwrap();
         let d = c.system_params().map.dynapix;
         assert_eq!(
             (d.gamma_add, d.gamma_del, d.update),
@@ -1487,7 +1489,10 @@ mod tests {
         );
         // ORB-SLAM2 mode keeps the thresholds but weighs nothing.
         let orb = c.clone().with_method(Method::Orbslam2).system_params();
-        assert_eq!(orb.map.dynapix.weighting, dynapix_slam::dynapix::Weighting::Off);
+        assert_eq!(
+            orb.map.dynapix.weighting,
+            dynapix_slam::dynapix::Weighting::Off
+        );
         // The record has the flat section and not the old place; it reads back.
         let v = c.to_json_value();
         assert_eq!(v["dynapix"]["gamma_add"], serde_json::json!(0.02));
