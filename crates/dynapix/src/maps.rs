@@ -230,6 +230,7 @@ impl<'a> MapJob<'a> {
             },
             "camera": cam,
             "depth_factor": seq.depth_factor,
+            "depth_validity": seq.depth_validity,
             "params": self.params,
             "cues": {
                 "combine": "noisy-or: P = 1 - prod(1 - P_cue)",
