@@ -11,6 +11,7 @@ pub mod flo;
 pub mod metrics;
 pub mod pairs;
 pub mod plane;
+mod validate;
 pub mod variational;
 pub mod viz;
 pub mod warp;

@@ -7,7 +7,10 @@
 //!   per-frame status file ([`FrameStatus`]).
 //! - [`tum`]: `rgb.txt`/`depth.txt` lists, [`associate`] (exactly like `associate.py`),
 //!   4-column association files.
-//! - [`images`]: rgb, depth (metres), masks, PFM float maps.
+//! - [`depth`]: which raw depth values are measurements ([`DepthValidity`]: the sensor's
+//!   saturation value and implausible depths are read as missing).
+//! - [`images`]: rgb, depth (metres), masks, probability maps (reference 16-bit PNG and
+//!   lossless PFM).
 //! - [`settings`]: ORB-SLAM2 settings YAML, presets `tum1 tum2 tum3 grade bonn`, the camera
 //!   of a sequence folder.
 //! - [`datasets`]: which public dataset a folder is (TUM `rgbd_dataset_freiburgN_*`, Bonn
@@ -28,6 +31,7 @@
 
 pub mod atomic;
 pub mod datasets;
+pub mod depth;
 pub mod error;
 pub mod ground_truth;
 pub mod images;
@@ -44,13 +48,16 @@ pub mod weights;
 
 pub use atomic::write_atomic;
 pub use datasets::Dataset;
+pub use depth::DepthValidity;
 pub use error::{IoError, Result};
 pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,
 };
 pub use images::{DepthImage, Gray16Image, ProbMap};
 pub use output::{OutputFolder, OutputLock};
-pub use sequence::{FrameData, FrameInfo, FrameList, Layout, Pairing, Sequence, SequenceOptions};
+pub use sequence::{
+    FrameData, FrameInfo, FrameList, InvalidDepth, Layout, Pairing, Sequence, SequenceOptions,
+};
 pub use settings::{OrbSettings, Settings};
 pub use trajectory::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 pub use tum::{Association, ListEntry, associate};

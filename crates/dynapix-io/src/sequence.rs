@@ -21,12 +21,15 @@
 //! per frame by [`Sequence::load_frame`], which takes `&self` and holds no lock, so frames can
 //! be loaded from rayon in parallel.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use dynapix_geometry::Se3;
 use image::{GrayImage, RgbImage};
 
 use crate::datasets::ASSOCIATION_FILES;
+use crate::depth::{DepthValidity, depth_to_metres_valid};
 use crate::error::{IoError, Result};
 use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame};
 use crate::images::{self, DepthImage, ProbMap};
@@ -106,6 +109,8 @@ pub struct SequenceOptions {
     /// Folder of the probability maps (named like the rgb images); `None` = `<dir>/prob`.
     /// Lets a read-only dataset use maps computed elsewhere.
     pub prob_dir: Option<PathBuf>,
+    /// Which depth values are measurements (the others are read as missing).
+    pub depth_validity: DepthValidity,
 }
 
 impl Default for SequenceOptions {
@@ -117,6 +122,7 @@ impl Default for SequenceOptions {
             association_file: None,
             gt_max_gap: DEFAULT_MAX_GAP,
             prob_dir: None,
+            depth_validity: DepthValidity::default(),
         }
     }
 }
@@ -195,6 +201,21 @@ pub struct Sequence {
     pub gt_max_gap: f64,
     /// Folder of the probability maps (`<dir>/prob` unless [`SequenceOptions::prob_dir`]).
     pub prob_dir: PathBuf,
+    /// Which depth values are measurements: the others (the sensor's saturation value,
+    /// implausible ranges) are read as missing by every depth reader of this sequence.
+    pub depth_validity: DepthValidity,
+    /// Frames whose depth had values that are no measurement: frame index → pixels. Shared
+    /// by the clones of the sequence, so each frame is reported once per run.
+    invalid_depth: Arc<Mutex<BTreeMap<usize, usize>>>,
+}
+
+/// Depth pixels read as missing because they were no measurement ([`DepthValidity`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct InvalidDepth {
+    /// Frames with at least one such pixel.
+    pub frames: usize,
+    /// Such pixels, over those frames.
+    pub pixels: usize,
 }
 
 /// `dir/<sub>/<name>` if that file exists.
@@ -321,6 +342,8 @@ impl Sequence {
             depth_factor,
             gt_max_gap: opts.gt_max_gap,
             prob_dir,
+            depth_validity: opts.depth_validity,
+            invalid_depth: Arc::default(),
         })
     }
 
@@ -401,7 +424,60 @@ impl Sequence {
     /// agree; nothing else is read.
     pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, DepthImage)> {
         let info = self.info(i)?;
-        images::read_rgbd(&info.rgb, &info.depth, self.depth_factor)
+        let rgb = images::read_rgb(&info.rgb)?;
+        let depth = self.load_depth(i)?;
+        images::check_same_size(&info.rgb, rgb.dimensions(), &info.depth, depth.dimensions())?;
+        Ok((rgb, depth))
+    }
+
+    /// The depth (metres) of frame `i`, values that are no measurement read as missing
+    /// ([`Sequence::depth_validity`]). The first time a frame has such values, a warning
+    /// names it with their count, and [`Sequence::invalid_depth`] counts it.
+    pub fn load_depth(&self, i: usize) -> Result<DepthImage> {
+        let info = self.info(i)?;
+        let (depth, invalid) = self.decode_depth(&info.depth)?;
+        if invalid > 0
+            && let Ok(mut seen) = self.invalid_depth.lock()
+            && seen.insert(i, invalid).is_none()
+        {
+            tracing::warn!(
+                "frame {i} ({}): {invalid} depth pixels at the sensor's saturation value {} or \
+                 beyond {} m are no measurement: read as missing",
+                info.depth.display(),
+                self.depth_validity
+                    .saturation
+                    .map_or("(none)".to_string(), |v| v.to_string()),
+                self.depth_validity.max_depth
+            );
+        }
+        Ok(depth)
+    }
+
+    /// Reads any depth image of this sequence (e.g. a background depth) in metres, values
+    /// that are no measurement read as missing ([`Sequence::depth_validity`]).
+    pub fn read_depth(&self, path: &Path) -> Result<DepthImage> {
+        Ok(self.decode_depth(path)?.0)
+    }
+
+    fn decode_depth(&self, path: &Path) -> Result<(DepthImage, usize)> {
+        let raw = images::read_depth_raw(path)?;
+        Ok(depth_to_metres_valid(
+            &raw,
+            self.depth_factor,
+            &self.depth_validity,
+        ))
+    }
+
+    /// The frames read so far whose depth had values that are no measurement, and how many
+    /// pixels (each frame counted once, however often it was read).
+    pub fn invalid_depth(&self) -> InvalidDepth {
+        self.invalid_depth
+            .lock()
+            .map(|seen| InvalidDepth {
+                frames: seen.len(),
+                pixels: seen.values().sum(),
+            })
+            .unwrap_or_default()
     }
 
     /// The files of frame `i`, or an "out of range" error.
@@ -456,7 +532,7 @@ impl Sequence {
         let rgb = images::read_rgb(&info.rgb)?;
         let size = rgb.dimensions();
         let same = |p: &Path, s: (u32, u32)| images::check_same_size(p, s, &info.rgb, size);
-        let depth = images::read_depth(&info.depth, self.depth_factor)?;
+        let depth = self.load_depth(i)?;
         same(&info.depth, depth.dimensions())?;
         let background = match &info.background {
             Some(p) => {
@@ -468,7 +544,7 @@ impl Sequence {
         };
         let depth_bg = match &info.depth_bg {
             Some(p) => {
-                let img = images::read_depth(p, self.depth_factor)?;
+                let img = self.read_depth(p)?;
                 same(p, img.dimensions())?;
                 Some(img)
             }

@@ -35,6 +35,7 @@ pub mod rigidity;
 pub mod sequence;
 pub mod splat;
 pub mod static_depth;
+mod validate;
 
 #[cfg(test)]
 pub(crate) mod testutil;

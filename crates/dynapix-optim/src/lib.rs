@@ -15,6 +15,7 @@ mod edge;
 pub mod pose;
 pub mod pose_graph;
 pub mod problem;
+mod validate;
 
 pub use ba::bundle_adjust;
 pub use pose::optimize_pose;

@@ -37,3 +37,5 @@ pub use map::{Map, MapParams};
 pub use system::{FrameInput, FrameResult, ProcessError, System, SystemParams};
 pub use tracking::TrackingState;
 pub use weighting::{DynaPixParams, ProbUpdate, Weighting};
+
+mod validate;

@@ -9,8 +9,18 @@
 //! ([`Config::motion_params`], [`Config::system_params`]).
 //!
 //! Files are JSON (`.json`) or YAML (anything else); every section and every parameter
-//! struct is optional field by field, and unknown keys are errors. The whole resolved
-//! configuration is written into `run.json`.
+//! struct is optional field by field. Unknown keys, duplicate keys and values of the wrong
+//! type are errors naming the key. Every number has a documented range, checked before any
+//! work starts ([`Config::validate`], through the [`dynapix_params::Validate`] implementation
+//! of each parameter struct): an error names the key path and the range, e.g.
+//! `slam.params.tracking.pose.rounds must lie in [1, 100], got 1000000000000`. The whole
+//! resolved configuration is written into `run.json`.
+//!
+//! The DynaPix thresholds of the SLAM backend are the flat section [`Config::dynapix`]
+//! (`dynapix: {gamma_add: 0.05, gamma_del: 0.1, update: {ema: {alpha: 0.2}}}`); the SLAM
+//! parameters follow from it ([`Config::system_params`]). Files that still give them at their
+//! old place, `slam.params.map.dynapix`, are read as if they were in the flat section (with
+//! a warning naming the new key); giving both with different values is an error.
 
 use std::path::{Path, PathBuf};
 
@@ -19,8 +29,9 @@ use dynapix_io::Pairing;
 use dynapix_motion::{
     Backgrounds, MotionParams, ReconstructParams, RigidityParams, StaticDepthParams, Variant,
 };
+use dynapix_params::{Checked, InvalidParam, Validate, above, each, nested, optional, range};
 use dynapix_slam::system::SystemParams;
-use dynapix_slam::weighting::DynaPixParams;
+use dynapix_slam::weighting::{DynaPixParams, ProbUpdate};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -35,6 +46,9 @@ pub struct Config {
     pub mode: Mode,
     /// The method.
     pub method: Method,
+    /// The DynaPix thresholds of the SLAM backend (γ_add, γ_del, the per-point update rule);
+    /// `slam.params.map.dynapix` follows from them and from `mode`.
+    pub dynapix: DynaPixConfig,
     /// How the sequence folder is read.
     pub sequence: SequenceConfig,
     /// Motion maps.
@@ -45,6 +59,60 @@ pub struct Config {
     pub passes: PassConfig,
     /// The online (streaming) schedule.
     pub online: OnlineConfig,
+}
+
+/// The DynaPix thresholds of the SLAM backend, in one flat section (paper §3.2): a keypoint
+/// gives birth to a map point only when its motion probability P ≤ γ_add, a map point is
+/// removed once its own probability reaches γ_del, and that probability follows its
+/// observations by `update`. The weighting behaviour itself follows [`Config::mode`] and the
+/// method.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DynaPixConfig {
+    /// γ_add in [0, 1] (0.05): the birth gate of map points; also the threshold of the
+    /// `threshold` ablation.
+    pub gamma_add: f32,
+    /// γ_del in (0, 1] (0.1): a map point is removed once its motion probability reaches it
+    /// (0 would remove every point on its first observation, so it is refused).
+    pub gamma_del: f32,
+    /// How a map point's probability follows its observations (paper mode: EMA with
+    /// α = 0.2, α in (0, 1]; reference mode: the latest observation).
+    pub update: ProbUpdate,
+}
+
+impl DynaPixConfig {
+    /// The values of `mode`.
+    pub fn for_mode(mode: Mode) -> Self {
+        let d = DynaPixParams::new(mode.weighting());
+        Self {
+            gamma_add: d.gamma_add,
+            gamma_del: d.gamma_del,
+            update: d.update,
+        }
+    }
+
+    /// The SLAM backend's parameters with these thresholds and `weighting`.
+    pub fn params(&self, weighting: dynapix_slam::weighting::Weighting) -> DynaPixParams {
+        DynaPixParams {
+            weighting,
+            gamma_add: self.gamma_add,
+            gamma_del: self.gamma_del,
+            update: self.update,
+        }
+    }
+}
+
+impl Default for DynaPixConfig {
+    fn default() -> Self {
+        Self::for_mode(Mode::Paper)
+    }
+}
+
+impl Validate for DynaPixConfig {
+    fn validate(&self) -> Checked {
+        self.params(dynapix_slam::weighting::Weighting::Paper)
+            .validate()
+    }
 }
 
 /// How the sequence folder is read (one reader, one association policy).
@@ -67,6 +135,24 @@ pub struct SequenceConfig {
     /// kept in the order they are first read until the budget is spent (a pass reads the
     /// sequence in order, so a least-recently-used policy would keep nothing useful).
     pub decoded_cache_mib: usize,
+    /// The raw depth value the camera writes at saturation (65535, the largest 16-bit
+    /// value); such pixels are read as missing by every consumer (SLAM, the cues, the
+    /// paper's terms), with a warning giving their count per frame. `null`: every raw value
+    /// is a depth.
+    pub depth_saturation: Option<u16>,
+    /// Depths beyond this many metres (20; in (0, 1000]) are no measurement of the camera
+    /// and are read as missing, like saturated ones.
+    pub max_depth: f32,
+}
+
+impl SequenceConfig {
+    /// Which depth values are measurements.
+    pub fn depth_validity(&self) -> dynapix_io::DepthValidity {
+        dynapix_io::DepthValidity {
+            saturation: self.depth_saturation,
+            max_depth: self.max_depth,
+        }
+    }
 }
 
 impl Default for SequenceConfig {
@@ -77,6 +163,8 @@ impl Default for SequenceConfig {
             max_frames: None,
             skip_bad_frames: false,
             decoded_cache_mib: 1024,
+            depth_saturation: dynapix_io::DepthValidity::default().saturation,
+            max_depth: dynapix_io::DepthValidity::default().max_depth,
         }
     }
 }
@@ -273,8 +361,10 @@ pub enum VocabularyChoice {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SlamConfig {
-    /// Parameters of every stage; the DynaPix behaviour in `params.map.dynapix` follows
-    /// [`Config::mode`] and the method ([`Config::system_params`]).
+    /// Parameters of every stage. `params.map.dynapix` is not a key of this section: it
+    /// follows from the flat section [`Config::dynapix`], [`Config::mode`] and the method
+    /// ([`Config::system_params`]); a value changed here in code instead is refused by
+    /// [`Config::validate`].
     pub params: SystemParams,
     /// The vocabulary.
     pub vocabulary: VocabularyChoice,
@@ -441,6 +531,7 @@ impl Config {
         Self {
             mode,
             method: Method::Dynapix,
+            dynapix: DynaPixConfig::for_mode(mode),
             sequence: SequenceConfig::default(),
             motion: MotionConfig {
                 params: MotionParams::new(variant, mode.motion()),
@@ -541,19 +632,17 @@ impl Config {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"))
         {
-            serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))
+            parse_json(&text).map_err(bad)
         } else if text.trim().is_empty() {
             Ok(Value::Null)
         } else {
-            serde_saphyr::from_str(&text).map_err(|e| bad(format!("not YAML: {e}")))
+            parse_yaml(&text).map_err(bad)
         }
     }
 
     /// Parses a JSON configuration (see [`Config::from_value`]).
     pub fn from_json_str(text: &str) -> Result<Self> {
-        let v: Value =
-            serde_json::from_str(text).map_err(|e| Error::config(format!("not JSON: {e}")))?;
-        Self::from_value(v)
+        Self::from_value(parse_json(text).map_err(Error::config)?)
     }
 
     /// Parses a YAML configuration (see [`Config::from_value`]).
@@ -561,16 +650,16 @@ impl Config {
         if text.trim().is_empty() {
             return Ok(Self::default());
         }
-        let v: Value =
-            serde_saphyr::from_str(text).map_err(|e| Error::config(format!("not YAML: {e}")))?;
-        Self::from_value(v)
+        Self::from_value(parse_yaml(text).map_err(Error::config)?)
     }
 
     /// Builds a configuration from a parsed document: its `mode` (and motion variant) pick
     /// the defaults, its values replace them key by key. Unknown keys, values of the wrong
-    /// type and nested mode fields that disagree with `mode` are errors.
+    /// type (named by key), values out of their range and nested mode fields that disagree
+    /// with `mode` are errors. DynaPix thresholds at their old place
+    /// (`slam.params.map.dynapix`) are read into the flat section `dynapix`.
     pub fn from_value(v: Value) -> Result<Self> {
-        let v = match v {
+        let mut v = match v {
             Value::Null => Value::Object(Default::default()),
             Value::Object(_) => v,
             other => {
@@ -589,134 +678,43 @@ impl Config {
                 .map_err(|e| Error::config(format!("motion.params.variant: {e}")))?,
             None => Variant::Tum,
         };
+        move_nested_dynapix(&mut v, mode)?;
         let base = Self::with_variant(mode, variant);
-        let mut merged = base.to_json_value();
+        let base_value = base.to_json_value();
+        let mut merged = base_value.clone();
         check_known_keys(&v, &merged, "")?;
-        merge(&mut merged, v);
-        let config: Config =
-            serde_json::from_value(merged).map_err(|e| Error::config(format!("{e}")))?;
+        merge(&mut merged, v.clone());
+        let mut config: Config = serde_json::from_value(merged).map_err(|e| {
+            Error::config(blame_type_error(&base_value, &v).unwrap_or_else(|| e.to_string()))
+        })?;
+        // The section a file cannot set follows from the ones it can.
+        config.slam.params.map.dynapix = config.dynapix.params(config.mode.weighting());
         config.validate()?;
         Ok(config)
     }
 
     /// The configuration as a JSON value (what `run.json` records). Goes through the JSON
     /// text so `f32` parameters read as written (0.9, not 0.8999999761581421).
+    /// `slam.params.map.dynapix` is left out: it follows from `dynapix` and `mode`.
     pub fn to_json_value(&self) -> Value {
-        serde_json::to_string(self)
+        let mut v = serde_json::to_string(self)
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok())
-            .unwrap_or(Value::Null)
+            .unwrap_or(Value::Null);
+        if let Some(map) = v
+            .pointer_mut("/slam/params/map")
+            .and_then(Value::as_object_mut)
+        {
+            map.remove("dynapix");
+        }
+        v
     }
 
-    /// Checks the values: nested mode fields agree with [`Config::mode`], counts and ranges
-    /// are valid.
+    /// Checks the values before any work: nested mode fields agree with [`Config::mode`],
+    /// every number lies in its documented range (each parameter struct's
+    /// [`dynapix_params::Validate`]); the error names the key path and the range.
     pub fn validate(&self) -> Result<()> {
-        let m = self.mode.motion();
-        let p = &self.motion.params;
-        for (key, got) in [
-            ("motion.params.mode", p.mode),
-            ("motion.params.splat.mode", p.splat.mode),
-            ("motion.params.moving.mode", p.moving.mode),
-        ] {
-            if got != m {
-                return Err(Error::config(format!(
-                    "{key} is {got:?} but mode is {}: set only `mode` (paper or reference)",
-                    self.mode.name()
-                )));
-            }
-        }
-        let w = self.slam.params.map.dynapix.weighting;
-        if w != self.mode.weighting() {
-            return Err(Error::config(format!(
-                "slam.params.map.dynapix.weighting is {w:?} but mode is {}: set only `mode` \
-                 (the method turns weighting off for orbslam2 and threshold)",
-                self.mode.name()
-            )));
-        }
-        if p.offsets.contains(&0) {
-            return Err(Error::config("motion.params.offsets must not contain 0"));
-        }
-        if self.passes.weighted == 0 {
-            return Err(Error::config("passes.weighted must be at least 1"));
-        }
-        if self.sequence.max_frames == Some(0) {
-            return Err(Error::config("sequence.max_frames must be at least 1"));
-        }
-        if !(self.motion.max_pose_gap.is_finite() && self.motion.max_pose_gap >= 0.0) {
-            return Err(Error::config(
-                "motion.max_pose_gap must be a non-negative number",
-            ));
-        }
-        if !(self.sequence.max_diff.is_finite() && self.sequence.max_diff > 0.0) {
-            return Err(Error::config("sequence.max_diff must be positive"));
-        }
-        let v = self.slam.params.mapping.ba.min_relative_decrease;
-        if !(0.0..1.0).contains(&v) {
-            return Err(Error::config(format!(
-                "slam.params.mapping.ba.min_relative_decrease must lie in [0, 1), got {v}"
-            )));
-        }
-        let v = self.slam.params.mapping.ba_min_interval_s;
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(Error::config(format!(
-                "slam.params.mapping.ba_min_interval_s must be a non-negative number of seconds, got {v}"
-            )));
-        }
-        let d = &self.slam.params.map.dynapix;
-        for (key, v) in [("gamma_add", d.gamma_add), ("gamma_del", d.gamma_del)] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(Error::config(format!(
-                    "slam.params.map.dynapix.{key} must lie in [0, 1], got {v}"
-                )));
-            }
-        }
-        if let dynapix_slam::weighting::ProbUpdate::Ema { alpha } = d.update
-            && !(alpha.is_finite() && alpha > 0.0 && alpha <= 1.0)
-        {
-            return Err(Error::config(format!(
-                "slam.params.map.dynapix.update: the EMA weight must lie in (0, 1], got {alpha}"
-            )));
-        }
-        if let Some(p) = &self.online.rigidity_flow {
-            p.validate()
-                .map_err(|e| Error::config(format!("online.rigidity_flow: {e}")))?;
-        }
-        if self.online.past_offsets.iter().any(|&o| o >= 0) {
-            return Err(Error::config(
-                "online.past_offsets must be negative (the moving term uses past neighbours only)",
-            ));
-        }
-        if self.method.terms().is_some() {
-            let c = self.cues();
-            if !(c.paper || c.geometric || c.rigidity) {
-                return Err(Error::config(
-                    "motion.cues: every cue is off; enable at least one of paper, geometric, \
-                     rigidity (or use method orbslam2)",
-                ));
-            }
-        }
-        self.motion
-            .static_depth
-            .validate()
-            .map_err(|e| Error::config(format!("motion.static_depth: {e}")))?;
-        self.motion
-            .rigidity
-            .validate()
-            .map_err(|e| Error::config(format!("motion.rigidity: {e}")))?;
-        if self.motion.rigidity.offsets.contains(&0) {
-            return Err(Error::config("motion.rigidity.offsets must not contain 0"));
-        }
-        if let Some(w) = self.slam.params.static_features_min_weight
-            && !(0.0..=1.0).contains(&w)
-        {
-            return Err(Error::config(format!(
-                "slam.params.static_features_min_weight must lie in [0, 1], got {w}"
-            )));
-        }
-        if self.online.window == 0 {
-            return Err(Error::config("online.window must be at least 1"));
-        }
-        Ok(())
+        Validate::validate(self).map_err(|e| Error::config(e.to_string()))
     }
 
     /// The motion parameters of the method: the ablations switch a term off.
@@ -754,7 +752,7 @@ impl Config {
     /// and the threshold ablation).
     pub fn system_params(&self) -> SystemParams {
         let mut p = self.slam.params.clone();
-        p.map.dynapix.weighting = self.method.weighting(self.mode);
+        p.map.dynapix = self.dynapix.params(self.method.weighting(self.mode));
         if self.method == Method::Orbslam2 {
             // ORB-SLAM2 mode is ORB-SLAM2: no static-feature mask, no predicted tracking.
             p.static_features_min_weight = None;
@@ -769,6 +767,320 @@ impl Config {
     pub fn orbslam2_params(&self) -> SystemParams {
         self.clone().with_method(Method::Orbslam2).system_params()
     }
+}
+
+impl Validate for Config {
+    fn validate(&self) -> Checked {
+        let m = self.mode.motion();
+        let p = &self.motion.params;
+        for (key, got) in [
+            ("motion.params.mode", p.mode),
+            ("motion.params.splat.mode", p.splat.mode),
+            ("motion.params.moving.mode", p.moving.mode),
+        ] {
+            if got != m {
+                return Err(InvalidParam::new(
+                    key,
+                    format!(
+                        "is {got:?} but mode is {}: set only `mode` (paper or reference)",
+                        self.mode.name()
+                    ),
+                ));
+            }
+        }
+        let nested_dynapix = &self.slam.params.map.dynapix;
+        if *nested_dynapix != DynaPixParams::new(self.mode.weighting())
+            && *nested_dynapix != self.dynapix.params(self.mode.weighting())
+        {
+            return Err(InvalidParam::new(
+                "slam.params.map.dynapix",
+                format!(
+                    "is {nested_dynapix:?}, which neither the section `dynapix` nor mode {} \
+                     gives: set dynapix.gamma_add, dynapix.gamma_del, dynapix.update (and \
+                     `mode` for the weighting) instead",
+                    self.mode.name()
+                ),
+            ));
+        }
+        nested("sequence", &self.sequence)?;
+        nested("dynapix", &self.dynapix)?;
+        nested("motion", &self.motion)?;
+        nested("slam.params", &self.slam.params)?;
+        nested("passes", &self.passes)?;
+        nested("online", &self.online)?;
+        if self.method.terms().is_some() {
+            let c = self.cues();
+            if !(c.paper || c.geometric || c.rigidity) {
+                return Err(InvalidParam::new(
+                    "motion.cues",
+                    "every cue is off; enable at least one of paper, geometric, rigidity (or \
+                     use method orbslam2)",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Validate for SequenceConfig {
+    fn validate(&self) -> Checked {
+        above("max_diff", self.max_diff, 0.0, 10.0)?;
+        optional("max_frames", self.max_frames, 1, 100_000_000)?;
+        // 1 TiB: more than any machine this runs on.
+        range("decoded_cache_mib", self.decoded_cache_mib, 0, 1 << 20)?;
+        above("max_depth", self.max_depth, 0.0, 1000.0)
+    }
+}
+
+impl Validate for MotionConfig {
+    fn validate(&self) -> Checked {
+        nested("params", &self.params)?;
+        nested("reconstruct", &self.reconstruct)?;
+        range("max_pose_gap", self.max_pose_gap, 0.0, 60.0)?;
+        nested("static_depth", &self.static_depth)?;
+        nested("rigidity", &self.rigidity)
+    }
+}
+
+impl Validate for PassConfig {
+    fn validate(&self) -> Checked {
+        range("weighted", self.weighted, 1, 10)
+    }
+}
+
+impl Validate for OnlineConfig {
+    fn validate(&self) -> Checked {
+        range("lookahead", self.lookahead, 0, 300)?;
+        range("window", self.window, 1, 1000)?;
+        range("background_keyframes", self.background_keyframes, 0, 1000)?;
+        // The moving term uses past neighbours only.
+        each("past_offsets", &self.past_offsets, (0, 16), -60, -1)?;
+        range(
+            "rigidity_flow_working_width",
+            self.rigidity_flow_working_width,
+            0,
+            16_384,
+        )?;
+        if let Some(p) = &self.rigidity_flow {
+            nested("rigidity_flow", p)?;
+        }
+        Ok(())
+    }
+}
+
+/// A JSON document as a value; a key given twice in one map is an error naming it.
+fn parse_json(text: &str) -> std::result::Result<Value, String> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let v = serde::de::DeserializeSeed::deserialize(Strict { at: String::new() }, &mut de)
+        .and_then(|v| de.end().map(|()| v))
+        .map_err(|e| format!("not JSON: {e}"))?;
+    Ok(v)
+}
+
+/// A YAML document as a value; a key given twice in one map is an error naming it.
+fn parse_yaml(text: &str) -> std::result::Result<Value, String> {
+    serde_saphyr::from_str::<StrictValue>(text)
+        .map(|v| v.0)
+        .map_err(|e| format!("not YAML: {e}"))
+}
+
+/// A document value read by [`Strict`].
+struct StrictValue(Value);
+
+impl<'de> Deserialize<'de> for StrictValue {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        serde::de::DeserializeSeed::deserialize(Strict { at: String::new() }, d).map(StrictValue)
+    }
+}
+
+/// Reads any self-describing document into a [`Value`], refusing a key that a map gives
+/// twice (serde_json's own `Value` keeps the last one silently). `at` is the key path so far.
+struct Strict {
+    at: String,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for Strict {
+    type Value = Value;
+    fn deserialize<D: serde::Deserializer<'de>>(
+        self,
+        d: D,
+    ) -> std::result::Result<Value, D::Error> {
+        d.deserialize_any(self)
+    }
+}
+
+impl<'de> serde::de::Visitor<'de> for Strict {
+    type Value = Value;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a configuration value")
+    }
+    fn visit_bool<E>(self, v: bool) -> std::result::Result<Value, E> {
+        Ok(Value::Bool(v))
+    }
+    fn visit_i64<E>(self, v: i64) -> std::result::Result<Value, E> {
+        Ok(Value::from(v))
+    }
+    fn visit_u64<E>(self, v: u64) -> std::result::Result<Value, E> {
+        Ok(Value::from(v))
+    }
+    fn visit_f64<E>(self, v: f64) -> std::result::Result<Value, E> {
+        Ok(serde_json::Number::from_f64(v).map_or(Value::Null, Value::Number))
+    }
+    fn visit_str<E>(self, v: &str) -> std::result::Result<Value, E> {
+        Ok(Value::String(v.to_string()))
+    }
+    fn visit_string<E>(self, v: String) -> std::result::Result<Value, E> {
+        Ok(Value::String(v))
+    }
+    fn visit_none<E>(self) -> std::result::Result<Value, E> {
+        Ok(Value::Null)
+    }
+    fn visit_unit<E>(self) -> std::result::Result<Value, E> {
+        Ok(Value::Null)
+    }
+    fn visit_some<D: serde::Deserializer<'de>>(self, d: D) -> std::result::Result<Value, D::Error> {
+        serde::de::DeserializeSeed::deserialize(self, d)
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(
+        self,
+        mut seq: A,
+    ) -> std::result::Result<Value, A::Error> {
+        let mut out = Vec::new();
+        while let Some(v) = seq.next_element_seed(Strict {
+            at: format!("{}[{}]", self.at, out.len()),
+        })? {
+            out.push(v);
+        }
+        Ok(Value::Array(out))
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(
+        self,
+        mut map: A,
+    ) -> std::result::Result<Value, A::Error> {
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            let at = if self.at.is_empty() {
+                key.clone()
+            } else {
+                format!("{}.{key}", self.at)
+            };
+            if out.contains_key(&key) {
+                return Err(serde::de::Error::custom(format!(
+                    "duplicate key {at} (each key may be given once)"
+                )));
+            }
+            let v = map.next_value_seed(Strict { at })?;
+            out.insert(key, v);
+        }
+        Ok(Value::Object(out))
+    }
+}
+
+/// Reads DynaPix thresholds given at their old place, `slam.params.map.dynapix`, into the
+/// flat section `dynapix` (with a warning naming the new key). The old block's `weighting`
+/// must agree with `mode`; a threshold given in both places with different values is an
+/// error.
+fn move_nested_dynapix(v: &mut Value, mode: Mode) -> Result<()> {
+    let Some(old) = v
+        .pointer_mut("/slam/params/map")
+        .and_then(Value::as_object_mut)
+        .and_then(|m| m.remove("dynapix"))
+    else {
+        return Ok(());
+    };
+    let Value::Object(old) = old else {
+        return Err(Error::config(
+            "slam.params.map.dynapix must be a map; the DynaPix thresholds are now the section \
+             `dynapix` (gamma_add, gamma_del, update)",
+        ));
+    };
+    for (key, value) in old {
+        let at = format!("slam.params.map.dynapix.{key}");
+        match key.as_str() {
+            "weighting" => {
+                let w: dynapix_slam::weighting::Weighting = serde_json::from_value(value)
+                    .map_err(|e| Error::config(format!("{at}: {e}")))?;
+                if w != mode.weighting() {
+                    return Err(Error::config(format!(
+                        "{at} is {w:?} but mode is {}: set only `mode` (the method turns \
+                         weighting off for orbslam2 and threshold)",
+                        mode.name()
+                    )));
+                }
+            }
+            "gamma_add" | "gamma_del" | "update" => {
+                let Value::Object(root) = v else {
+                    return Ok(());
+                };
+                let flat = root
+                    .entry("dynapix")
+                    .or_insert_with(|| Value::Object(Default::default()));
+                let Value::Object(flat) = flat else {
+                    return Err(Error::config("dynapix must be a map"));
+                };
+                match flat.get(&key) {
+                    Some(given) if *given != value => {
+                        return Err(Error::config(format!(
+                            "{at} ({value}) and dynapix.{key} ({given}) disagree: give it once, \
+                             as dynapix.{key}"
+                        )));
+                    }
+                    Some(_) => {}
+                    None => {
+                        tracing::warn!("{at} is read as dynapix.{key}: write it there");
+                        flat.insert(key, value);
+                    }
+                }
+            }
+            _ => {
+                return Err(Error::config(format!(
+                    "unknown key {at} (the DynaPix thresholds are now the section `dynapix`: \
+                     gamma_add, gamma_del, update)"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The key of `user` whose value has the wrong type for the configuration: each value of the
+/// document is tried alone over the defaults `base`, and the first that cannot be read is
+/// named, with serde's reason. `None` when no single value is at fault.
+fn blame_type_error(base: &Value, user: &Value) -> Option<String> {
+    fn leaves(v: &Value, at: &mut Vec<String>, out: &mut Vec<Vec<String>>) {
+        match v {
+            Value::Object(m) if !m.is_empty() => {
+                for (k, child) in m {
+                    at.push(k.clone());
+                    leaves(child, at, out);
+                    at.pop();
+                }
+            }
+            _ => out.push(at.clone()),
+        }
+    }
+    let mut paths = Vec::new();
+    leaves(user, &mut Vec::new(), &mut paths);
+    for path in paths {
+        let mut value = user;
+        for k in &path {
+            value = value.get(k)?;
+        }
+        let mut single = value.clone();
+        for k in path.iter().rev() {
+            let mut m = serde_json::Map::new();
+            m.insert(k.clone(), single);
+            single = Value::Object(m);
+        }
+        let mut tried = base.clone();
+        merge(&mut tried, single);
+        if let Err(e) = serde_json::from_value::<Config>(tried) {
+            let key = path.join(".");
+            // serde names the struct field it was reading, not where it sits.
+            return Some(format!("{key}: {e} (got {value})"));
+        }
+    }
+    None
 }
 
 /// Errors for keys of `file` that `known` (the serialised defaults) does not have.
@@ -920,6 +1232,9 @@ mod tests {
         assert_eq!(c.motion.params.offsets, vec![-2, 2]);
         assert_eq!(c.motion.params.movable, MotionParams::default().movable);
         assert_eq!(c.slam.params.tracking.motion_th, 10.0);
+        // The old place of the DynaPix thresholds still reads, into the flat section.
+        assert_eq!(c.dynapix.gamma_del, 0.2);
+        assert_eq!(c.system_params().map.dynapix.gamma_del, 0.2);
         assert_eq!(c.slam.params.map.dynapix.gamma_del, 0.2);
         assert_eq!(c.slam.params.map.dynapix.gamma_add, 0.05);
         // A full record reads back to the same configuration.
@@ -980,10 +1295,13 @@ mod tests {
             .to_string();
         assert!(e.contains("offsets"), "{e}");
         let mut c = Config::default();
-        c.slam.params.map.dynapix.update = dynapix_slam::weighting::ProbUpdate::Ema { alpha: 2.0 };
-        assert!(c.validate().unwrap_err().to_string().contains("EMA weight"));
-        c.slam.params.map.dynapix.update =
-            dynapix_slam::weighting::ProbUpdate::Ema { alpha: f32::NAN };
+        c.dynapix.update = dynapix_slam::weighting::ProbUpdate::Ema { alpha: 2.0 };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("dynapix.update.ema.alpha must lie in (0, 1]"),
+            "{e}"
+        );
+        c.dynapix.update = dynapix_slam::weighting::ProbUpdate::Ema { alpha: f32::NAN };
         assert!(c.validate().is_err());
         let c = Config::from_yaml_str("sequence: {skip_bad_frames: true}\n").unwrap();
         assert!(c.sequence.skip_bad_frames && !Config::default().sequence.skip_bad_frames);
@@ -991,6 +1309,220 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("static_features_min_weight"), "{e}");
+    }
+
+    /// The numbers of a configuration document with their key paths (`a.b[2]`), nulls
+    /// (unset options) included.
+    fn numeric_leaves(v: &Value, at: &str, out: &mut Vec<(String, String)>) {
+        let pointer = |key: &str| {
+            format!(
+                "/{}",
+                key.replace('.', "/").replace('[', "/").replace(']', "")
+            )
+        };
+        match v {
+            Value::Object(m) => {
+                for (k, child) in m {
+                    let key = if at.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{at}.{k}")
+                    };
+                    numeric_leaves(child, &key, out);
+                }
+            }
+            Value::Array(a) => {
+                for (i, child) in a.iter().enumerate() {
+                    numeric_leaves(child, &format!("{at}[{i}]"), out);
+                }
+            }
+            Value::Number(_) | Value::Null => out.push((at.to_string(), pointer(at))),
+            _ => {}
+        }
+    }
+
+    /// Every number of the serialised configuration is checked up front: set to ±10¹² (an
+    /// integer where the default is one), the configuration is refused with an error naming
+    /// the key, so a new field without a range fails here.
+    #[test]
+    fn every_number_has_a_range_checked_up_front() {
+        // Seeds take any value of their type.
+        const ANY_U64: [&str; 4] = [
+            "slam.seed",
+            "slam.params.tracking.reloc.seed",
+            "slam.params.loop_closing.detection.seed",
+            "motion.rigidity.seed",
+        ];
+        for mode in [Mode::Paper, Mode::Reference] {
+            let mut c = Config::new(mode);
+            c.online.rigidity_flow = Some(OnlineConfig::cheap_rigidity_flow());
+            c.sequence.max_frames = Some(100);
+            let base = c.to_json_value();
+            assert_eq!(Config::from_value(base.clone()).unwrap(), c);
+            let mut leaves = Vec::new();
+            numeric_leaves(&base, "", &mut leaves);
+            assert!(leaves.len() > 150, "{}", leaves.len());
+            for (key, pointer) in &leaves {
+                let integer = base
+                    .pointer(pointer)
+                    .is_some_and(|v| v.is_i64() || v.is_u64());
+                for sign in [1i64, -1] {
+                    if sign > 0 && ANY_U64.contains(&key.as_str()) {
+                        continue;
+                    }
+                    let absurd = if integer || base.pointer(pointer) == Some(&Value::Null) {
+                        serde_json::json!(sign * 1_000_000_000_000)
+                    } else {
+                        serde_json::json!(sign as f64 * 1e12)
+                    };
+                    let mut doc = base.clone();
+                    *doc.pointer_mut(pointer).unwrap() = absurd.clone();
+                    let e = match Config::from_value(doc) {
+                        Ok(_) => panic!("{key} = {absurd} was accepted"),
+                        Err(e) => e.to_string(),
+                    };
+                    assert!(e.contains(key.as_str()), "{key} = {absurd}: {e}");
+                }
+            }
+        }
+        // The cases of issue 36, with the range in the message.
+        for (doc, want) in [
+            (
+                r#"{"slam": {"params": {"tracking": {"matcher": {"histo_len": 1000000000000}}}}}"#,
+                "slam.params.tracking.matcher.histo_len must lie in [1, 360], got 1000000000000",
+            ),
+            (
+                r#"{"motion": {"params": {"moving": {"lowpass_sigma": 1e12}}}}"#,
+                "motion.params.moving.lowpass_sigma must lie in [0, 100], got 1000000000000",
+            ),
+            (
+                r#"{"passes": {"weighted": 1000000000000}}"#,
+                "passes.weighted must lie in [1, 10], got 1000000000000",
+            ),
+            (
+                r#"{"motion": {"rigidity": {"refine_rounds": 1000000000000}}}"#,
+                "motion.rigidity.refine_rounds must lie in [0, 100], got 1000000000000",
+            ),
+            (
+                r#"{"slam": {"params": {"tracking": {"pose": {"rounds": 1000000000000}}}}}"#,
+                "slam.params.tracking.pose.rounds must lie in [1, 100], got 1000000000000",
+            ),
+            (
+                r#"{"slam": {"params": {"tracking": {"reloc": {"probability": -1}}}}}"#,
+                "slam.params.tracking.reloc.probability must lie in (0, 1], got -1",
+            ),
+            (
+                r#"{"dynapix": {"gamma_del": 0}}"#,
+                "dynapix.gamma_del must lie in (0, 1], got 0",
+            ),
+            (
+                r#"{"motion": {"params": {"movable": {"clip_lo": 40}}}}"#,
+                "motion.params.movable.clip_hi must exceed clip_lo (35 ≤ 40)",
+            ),
+        ] {
+            let e = Config::from_json_str(doc).unwrap_err().to_string();
+            assert!(e.contains(want), "{doc}: {e}");
+        }
+    }
+
+    #[test]
+    fn duplicate_keys_and_type_errors_name_the_key() {
+        let e = Config::from_json_str(r#"{"passes": {"weighted": 2, "weighted": 3}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("duplicate key passes.weighted"), "{e}");
+        let e = Config::from_yaml_str("passes:\n  weighted: 2\n  weighted: 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("weighted"), "{e}");
+        let e = Config::from_json_str(r#"{"mode": "paper", "mode": "reference"}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("duplicate key mode"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let j = dir.path().join("c.json");
+        std::fs::write(&j, r#"{"online": {"window": 3, "window": 4}}"#).unwrap();
+        let e = Config::load(&j).unwrap_err().to_string();
+        assert!(
+            e.contains("c.json") && e.contains("duplicate key online.window"),
+            "{e}"
+        );
+        for (doc, key) in [
+            (
+                r#"{"slam": {"params": {"tracking": {"pose": {"rounds": "four"}}}}}"#,
+                "slam.params.tracking.pose.rounds",
+            ),
+            (r#"{"online": {"window": -3}}"#, "online.window"),
+            (
+                r#"{"motion": {"params": {"offsets": [1, "x"]}}}"#,
+                "motion.params.offsets",
+            ),
+            (
+                r#"{"sequence": {"skip_bad_frames": 1}}"#,
+                "sequence.skip_bad_frames",
+            ),
+        ] {
+            let e = Config::from_json_str(doc).unwrap_err().to_string();
+            assert!(e.contains(key), "{doc}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_flat_dynapix_section_gives_the_slam_thresholds() {
+        // Defaults: the paper's thresholds, as before the section existed.
+        let p = Config::default().system_params().map.dynapix;
+        assert_eq!(
+            p,
+            DynaPixParams::new(dynapix_slam::weighting::Weighting::Paper)
+        );
+        let r = Config::new(Mode::Reference).system_params().map.dynapix;
+        assert_eq!(
+            r,
+            DynaPixParams::new(dynapix_slam::weighting::Weighting::Reference)
+        );
+        let c = Config::from_yaml_str("dynapix: {gamma_add: 0.02, gamma_del: 0.3, update: max}\n")
+            .unwrap();
+        let d = c.system_params().map.dynapix;
+        assert_eq!(
+            (d.gamma_add, d.gamma_del, d.update),
+            (0.02, 0.3, ProbUpdate::Max)
+        );
+        // ORB-SLAM2 mode keeps the thresholds but weighs nothing.
+        let orb = c.clone().with_method(Method::Orbslam2).system_params();
+        assert_eq!(
+            orb.map.dynapix.weighting,
+            dynapix_slam::weighting::Weighting::Off
+        );
+        // The record has the flat section and not the old place; it reads back.
+        let v = c.to_json_value();
+        assert_eq!(v["dynapix"]["gamma_add"], serde_json::json!(0.02));
+        assert!(v.pointer("/slam/params/map/dynapix").is_none());
+        assert_eq!(Config::from_value(v).unwrap(), c);
+        // The old place is read into the new one; both with different values is an error.
+        let old = Config::from_yaml_str(
+            "slam: {params: {map: {dynapix: {gamma_add: 0.02, gamma_del: 0.3, update: max}}}}\n",
+        )
+        .unwrap();
+        assert_eq!(old, c);
+        let e = Config::from_yaml_str(
+            "dynapix: {gamma_add: 0.03}\nslam: {params: {map: {dynapix: {gamma_add: 0.02}}}}\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("dynapix.gamma_add"), "{e}");
+        let e = Config::from_yaml_str("slam: {params: {map: {dynapix: {weighting: off}}}}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("slam.params.map.dynapix.weighting"), "{e}");
+        // A threshold changed in code at the old place is not silently ignored.
+        let mut c = Config::default();
+        c.slam.params.map.dynapix.gamma_add = 0.2;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("dynapix.gamma_add"), "{e}");
+        let mut c = Config::default();
+        c.dynapix.gamma_add = 0.2;
+        c.validate().unwrap();
+        assert_eq!(c.system_params().map.dynapix.gamma_add, 0.2);
     }
 
     /// YAML made of the keys and values a configuration has, so documents are often

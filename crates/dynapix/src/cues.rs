@@ -96,6 +96,7 @@ impl<'a> RigidityJob<'a> {
             "frames_hash": self.input.frames_hash(),
             "camera": self.input.camera.pinhole(),
             "depth_factor": seq.depth_factor,
+            "depth_validity": seq.depth_validity,
             "poses": "none (pose-free cue)",
             "params": self.params,
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",

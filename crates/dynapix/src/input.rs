@@ -289,6 +289,7 @@ impl Input {
             max_diff: config.max_diff,
             pairing: config.pairing,
             association_file: association.map(Path::to_path_buf),
+            depth_validity: config.depth_validity(),
             ..Default::default()
         };
         let mut sequence = Sequence::open_with(dir, &opts)?;
@@ -584,10 +585,7 @@ impl Input {
             return Ok(f.1.clone());
         }
         let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
-        Ok(dynapix_io::images::read_depth(
-            &self.sequence.frames[i].depth,
-            self.sequence.depth_factor,
-        )?)
+        Ok(self.sequence.load_depth(i)?)
     }
 
     /// The frames whose files cannot be used, in frame order, when this input skips them

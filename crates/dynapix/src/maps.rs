@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
-use dynapix_io::images::{read_depth, read_depth_raw, read_rgb};
+use dynapix_io::images::{read_depth_raw, read_rgb};
 use dynapix_io::weights::write_motion_probability;
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
@@ -90,7 +90,7 @@ impl FrameLoader for SequenceLoader<'_> {
                 .depth_bg
                 .as_ref()
                 .ok_or_else(|| format!("no background depth for {}", info.rgb.display()))?;
-            read_depth(p, self.input.sequence.depth_factor)?
+            self.input.sequence.read_depth(p)?
         } else {
             frame.depth.clone()
         };
@@ -236,6 +236,7 @@ impl<'a> MapJob<'a> {
             },
             "camera": cam,
             "depth_factor": seq.depth_factor,
+            "depth_validity": seq.depth_validity,
             "params": self.params,
             "cues": {
                 "combine": "noisy-or: P = 1 - prod(1 - P_cue)",

@@ -350,9 +350,7 @@ impl<'a> OfflineRunner<'a> {
             None => PassWeights::None,
             Some(m) => PassWeights::Maps {
                 dir: &m.folder.dir,
-                threshold: method
-                    .thresholds()
-                    .then_some(config.slam.params.map.dynapix.gamma_add),
+                threshold: method.thresholds().then_some(config.dynapix.gamma_add),
                 allow_missing: self.options.allow_missing_maps,
             },
         };

@@ -638,7 +638,7 @@ impl Core {
                 let mean = p.as_image().iter().sum::<f32>() / p.as_image().len().max(1) as f32;
                 let w = p.static_weights();
                 let w = if self.config.method.thresholds() {
-                    w.thresholded(self.config.slam.params.map.dynapix.gamma_add)
+                    w.thresholded(self.config.dynapix.gamma_add)
                 } else {
                     w
                 };

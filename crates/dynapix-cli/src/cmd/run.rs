@@ -93,7 +93,7 @@ impl MethodArgs {
         if self.oracle_poses {
             c.motion.poses = PoseSource::GroundTruth;
         }
-        let d = &mut c.slam.params.map.dynapix;
+        let d = &mut c.dynapix;
         match (self.update, self.ema_alpha) {
             (Some(UpdateArg::Max), _) => d.update = ProbUpdate::Max,
             (Some(UpdateArg::Ema), a) => {
