@@ -44,6 +44,7 @@ from ._dynapix import (
     read_ground_truth,
     read_probability,
     read_trajectory,
+    save_trajectory,
     synth_presets,
 )
 
@@ -69,6 +70,7 @@ __all__ = [
     "read_probability",
     "read_trajectory",
     "run",
+    "save_trajectory",
     "stream",
     "synth_presets",
     "to_evo",

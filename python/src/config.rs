@@ -46,8 +46,9 @@ fn apply_overrides(base: &mut Value, overrides: Option<&Bound<'_, PyDict>>) -> P
     for (k, v) in kw.iter() {
         let key: String = k.extract()?;
         let mut value = to_value(&v)?;
-        for part in key.split("__").collect::<Vec<_>>().into_iter().rev().skip(1) {
-            value = serde_json::json!({ part: value });
+        let parts: Vec<&str> = key.split("__").collect();
+        for part in parts.iter().skip(1).rev() {
+            value = serde_json::json!({ *part: value });
         }
         let top = key.split("__").next().unwrap_or_default().to_string();
         let mut wrapped = serde_json::Map::new();

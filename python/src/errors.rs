@@ -7,26 +7,26 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
 create_exception!(
-    _dynapix,
+    dynapix,
     DynapixError,
     PyException,
     "Base class of every error raised by dynapix (the message is the library's)."
 );
 create_exception!(
-    _dynapix,
+    dynapix,
     ConfigError,
     DynapixError,
     "A configuration value, key, preset or parameter is not valid (the message names it)."
 );
 create_exception!(
-    _dynapix,
+    dynapix,
     DataError,
     DynapixError,
     "Input data that cannot be used: arrays of the wrong dtype, shape or size, frames out of \
      order, inputs that do not fit together, too few poses to evaluate."
 );
 create_exception!(
-    _dynapix,
+    dynapix,
     IoError,
     DynapixError,
     "Reading or writing a file failed (the message names the file)."

@@ -121,3 +121,41 @@ fn split(py: Python<'_>, v: Vec<(f64, Se3)>) -> PyResult<(Bound<'_, PyArray1<f64
     let t = v.iter().map(|p| p.0).collect();
     Ok((arrays::vec_array(py, t), arrays::poses_array(py, v.into_iter().map(|p| p.1))?))
 }
+
+/// Writes ``(timestamps, poses)`` (N and N×4×4 camera-to-world, or an N×8 TUM array), or
+/// a list of online ``FrameResult`` (their poses exactly as reported, untracked frames left
+/// out), as a TUM trajectory file (``t tx ty tz qx qy qz qw``) with the writer
+/// ``dynapix run`` uses, atomically: frame results give the bytes of
+/// ``dynapix run --online``.
+#[pyfunction]
+#[pyo3(signature = (path, timestamps, poses=None))]
+pub fn save_trajectory(py: Python<'_>, path: PathBuf, timestamps: &Bound<'_, PyAny>, poses: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    let results: Option<Vec<(f64, Se3)>> = if poses.is_none() && timestamps.is_instance_of::<pyo3::types::PyList>() {
+        let list = timestamps.cast::<pyo3::types::PyList>()?;
+        let mut v = Vec::new();
+        let mut all = true;
+        for item in list.iter() {
+            match item.cast::<crate::online::FrameResult>() {
+                Ok(r) => v.extend(r.get().pose_wc.map(|p| (r.get().t, p))),
+                Err(_) => all = false,
+            }
+        }
+        all.then_some(v)
+    } else {
+        None
+    };
+    let v = match (results, poses) {
+        (Some(v), _) => v,
+        (None, Some(p)) => {
+            let pair = pyo3::types::PyTuple::new(py, [timestamps, p])?;
+            arrays::stamped_poses(pair.as_any(), "trajectory")?
+        }
+        (None, None) => arrays::stamped_poses(timestamps, "trajectory")?,
+    };
+    let t = dynapix_io::Trajectory::new(
+        v.into_iter()
+            .map(|(t, p)| dynapix_io::StampedPose::new(t, p))
+            .collect(),
+    );
+    compute(py, move || Ok(t.write_tum(&path)?))
+}

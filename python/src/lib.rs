@@ -39,6 +39,7 @@ fn _dynapix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(evaluation::evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(evaluation::read_trajectory, m)?)?;
     m.add_function(wrap_pyfunction!(evaluation::read_ground_truth, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluation::save_trajectory, m)?)?;
     m.add_class::<synth::SyntheticSequence>()?;
     m.add_class::<synth::SyntheticFrame>()?;
     m.add_function(wrap_pyfunction!(synth::augment, m)?)?;

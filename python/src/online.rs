@@ -14,25 +14,34 @@ use crate::config::config_arg;
 use crate::errors::{compute, data, guard};
 
 /// The result of one frame of the online mode.
-#[pyclass(name = "FrameResult", module = "dynapix._dynapix", frozen, get_all)]
+#[pyclass(name = "FrameResult", module = "dynapix._dynapix", frozen)]
 pub struct FrameResult {
     /// Index of the frame in push order (0-based).
+    #[pyo3(get)]
     pub index: usize,
     /// Frame time (s).
+    #[pyo3(get)]
     pub t: f64,
     /// ``tracked``, ``lost`` or ``not_initialized``.
+    #[pyo3(get)]
     pub status: &'static str,
     /// The frame became a keyframe.
+    #[pyo3(get)]
     pub keyframe: bool,
     /// Frames pushed after this one before its result came (the lookahead).
+    #[pyo3(get)]
     pub latency_frames: usize,
     /// Mean motion probability P of the frame.
+    #[pyo3(get)]
     pub mean_probability: f32,
     /// Milliseconds spent on the motion map.
+    #[pyo3(get)]
     pub motion_ms: f64,
     /// Milliseconds spent on tracking (and the mapping run in this push).
+    #[pyo3(get)]
     pub slam_ms: f64,
-    pose: Option<[f64; 16]>,
+    /// The pose as the library reported it (exact, for the TUM writer).
+    pub pose_wc: Option<dynapix_geometry::Se3>,
 }
 
 #[pymethods]
@@ -40,15 +49,16 @@ impl FrameResult {
     /// Camera-to-world pose as a 4×4 float64 array, or None when the frame was not tracked.
     #[getter]
     fn pose<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.pose
-            .map(|m| Ok(PyArray1::from_vec(py, m.to_vec()).reshape([4, 4])?.into_any()))
+        self.pose_wc
+            .as_ref()
+            .map(|p| Ok(PyArray1::from_vec(py, arrays::matrix(p).to_vec()).reshape([4, 4])?.into_any()))
             .transpose()
     }
 
     /// True when the frame has a pose.
     #[getter]
     fn tracked(&self) -> bool {
-        self.pose.is_some()
+        self.pose_wc.is_some()
     }
 
     fn __repr__(&self) -> String {
@@ -70,7 +80,7 @@ impl From<dynapix::FrameResult> for FrameResult {
             mean_probability: r.mean_probability,
             motion_ms: r.motion_ms,
             slam_ms: r.slam_ms,
-            pose: r.pose_wc.as_ref().map(arrays::matrix),
+            pose_wc: r.pose_wc,
         }
     }
 }
@@ -90,6 +100,7 @@ pub struct Online {
     needs_masks: bool,
     pushed: usize,
     finished: bool,
+    last_t: Option<f64>,
 }
 
 impl Online {
@@ -122,6 +133,7 @@ impl Online {
             needs_masks,
             pushed: 0,
             finished: false,
+            last_t: None,
         })
     }
 
@@ -142,6 +154,12 @@ impl Online {
         if !t.is_finite() {
             return Err(data(format!("t must be a finite time in seconds, got {t}")));
         }
+        if let Some(last) = self.last_t.filter(|&last| t <= last) {
+            return Err(data(format!(
+                "frame {} (t = {t:.6}) is not after the previous frame (t = {last:.6})",
+                self.pushed
+            )));
+        }
         let size = self.size();
         let rgb = arrays::rgb_image(rgb, size)?;
         let depth = arrays::depth_image(depth, size, self.camera.settings.depth_map_factor)?;
@@ -160,6 +178,7 @@ impl Online {
             .ok_or_else(|| data("finish() was called: make a new Online to push more frames"))?;
         let r = compute(py, || online.push(frame))?;
         self.pushed += 1;
+        self.last_t = Some(t);
         Ok(r.map(FrameResult::from))
     }
 
