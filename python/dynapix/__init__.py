@@ -187,9 +187,14 @@ def stream(
         seq = Sequence(os.fspath(seq), config)
     if online is None:
         online = Online(seq.camera, config, lookahead=lookahead)
-    for i in range(len(seq)):
-        t, rgb, depth = seq.frame(i, raw_depth=raw_depth)
-        r = online.push(t, rgb, depth)
+    # Each frame is pushed with the next one (read ahead), as `dynapix run --online` does:
+    # the next frame's pose-free motion cue is computed beside this frame's tracking.
+    n = len(seq)
+    nxt = seq.frame(0, raw_depth=raw_depth) if n else None
+    for i in range(n):
+        cur = nxt
+        nxt = seq.frame(i + 1, raw_depth=raw_depth) if i + 1 < n else None
+        r = online.push(*cur, next=nxt)
         if r is not None:
             yield r
     yield from online.finish()

@@ -15,7 +15,10 @@ use crate::errors::data;
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 
 /// The numpy array behind `obj`, or a `DataError` naming `what`.
-fn untyped<'a, 'py>(obj: &'a Bound<'py, PyAny>, what: &str) -> PyResult<&'a Bound<'py, PyUntypedArray>> {
+fn untyped<'a, 'py>(
+    obj: &'a Bound<'py, PyAny>,
+    what: &str,
+) -> PyResult<&'a Bound<'py, PyUntypedArray>> {
     obj.cast::<PyUntypedArray>().map_err(|_| {
         let ty = obj
             .get_type()
@@ -56,7 +59,10 @@ fn check<T: numpy::Element>(
     let shape = a.shape();
     let ok_dtype = a.dtype().is_equiv_to(&numpy::dtype::<T>(py));
     let ok_shape = shape.len() == expect.len()
-        && shape.iter().zip(expect).all(|(s, e)| e.is_none_or(|e| e == *s));
+        && shape
+            .iter()
+            .zip(expect)
+            .all(|(s, e)| e.is_none_or(|e| e == *s));
     if ok_dtype && ok_shape {
         Ok(())
     } else {
@@ -90,7 +96,11 @@ pub fn rgb_image(obj: &Bound<'_, PyAny>, size: (u32, u32)) -> PyResult<RgbImage>
 
 /// An H×W depth image: uint16 raw (divided by `depth_factor` like the sequence reader) or
 /// float32 metres.
-pub fn depth_image(obj: &Bound<'_, PyAny>, size: (u32, u32), depth_factor: f64) -> PyResult<DepthImage> {
+pub fn depth_image(
+    obj: &Bound<'_, PyAny>,
+    size: (u32, u32),
+    depth_factor: f64,
+) -> PyResult<DepthImage> {
     let a = untyped(obj, "depth")?;
     let py = obj.py();
     let metres = if a.dtype().is_equiv_to(&numpy::dtype::<u16>(py)) {
@@ -98,7 +108,10 @@ pub fn depth_image(obj: &Bound<'_, PyAny>, size: (u32, u32), depth_factor: f64) 
         check_size("depth", a.shape(), size)?;
         // The reader's conversion, bit for bit: value · (1 / factor) in f32.
         let scale = 1.0f32 / depth_factor as f32;
-        elements::<u16>(a)?.into_iter().map(|v| v as f32 * scale).collect()
+        elements::<u16>(a)?
+            .into_iter()
+            .map(|v| v as f32 * scale)
+            .collect()
     } else if a.dtype().is_equiv_to(&numpy::dtype::<f32>(py)) {
         check::<f32>(a, "depth", "H×W", &[None, None])?;
         check_size("depth", a.shape(), size)?;
@@ -118,7 +131,8 @@ pub fn mask_image(obj: &Bound<'_, PyAny>, size: (u32, u32)) -> PyResult<GrayImag
     let a = untyped(obj, "mask")?;
     check::<u8>(a, "mask", "H×W", &[None, None])?;
     check_size("mask", a.shape(), size)?;
-    GrayImage::from_raw(size.0, size.1, elements::<u8>(a)?).ok_or_else(|| data("mask: buffer size mismatch"))
+    GrayImage::from_raw(size.0, size.1, elements::<u8>(a)?)
+        .ok_or_else(|| data("mask: buffer size mismatch"))
 }
 
 /// The 4×4 matrix of a pose, row-major.
@@ -134,7 +148,10 @@ pub fn matrix(p: &Se3) -> [f64; 16] {
 }
 
 /// N poses as an N×4×4 float64 array.
-pub fn poses_array<'py>(py: Python<'py>, poses: impl Iterator<Item = Se3>) -> PyResult<Bound<'py, PyArray3<f64>>> {
+pub fn poses_array<'py>(
+    py: Python<'py>,
+    poses: impl Iterator<Item = Se3>,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let mut v = Vec::new();
     for p in poses {
         v.extend_from_slice(&matrix(&p));
@@ -197,7 +214,13 @@ pub fn stamped_poses(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<(f64, S
                 if !(q.norm() > 1e-9) || r.iter().any(|x| !x.is_finite()) {
                     return Err(data(format!("{what} row {i}: not a pose")));
                 }
-                Ok((r[0], Se3::from_parts(Translation3::new(r[1], r[2], r[3]), UnitQuaternion::from_quaternion(q))))
+                Ok((
+                    r[0],
+                    Se3::from_parts(
+                        Translation3::new(r[1], r[2], r[3]),
+                        UnitQuaternion::from_quaternion(q),
+                    ),
+                ))
             })
             .collect();
     }
@@ -211,7 +234,12 @@ pub fn stamped_poses(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<(f64, S
     check::<f64>(ta, &format!("{what} timestamps"), "N", &[None])?;
     let n = ta.shape()[0];
     let pa = untyped(&p, &format!("{what} poses"))?;
-    check::<f64>(pa, &format!("{what} poses"), "N×4×4", &[Some(n), Some(4), Some(4)])?;
+    check::<f64>(
+        pa,
+        &format!("{what} poses"),
+        "N×4×4",
+        &[Some(n), Some(4), Some(4)],
+    )?;
     let ts = elements::<f64>(ta)?;
     let ms = elements::<f64>(pa)?;
     ts.into_iter()

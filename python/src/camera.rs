@@ -116,7 +116,11 @@ impl Camera {
     #[staticmethod]
     fn from_sequence(py: Python<'_>, seq_dir: PathBuf) -> PyResult<Self> {
         let input = compute(py, || {
-            dynapix::Input::open(&seq_dir, &SequenceConfig::default(), &CameraChoice::Sequence)
+            dynapix::Input::open(
+                &seq_dir,
+                &SequenceConfig::default(),
+                &CameraChoice::Sequence,
+            )
         })?;
         Ok(Self {
             inner: input.camera,

@@ -82,7 +82,10 @@ fn read_file(path: &Path) -> dynapix::Result<Value> {
         message,
     };
     let text = std::fs::read_to_string(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
         serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))
     } else if text.trim().is_empty() {
         Ok(Value::Null)
@@ -95,7 +98,13 @@ fn read_file(path: &Path) -> dynapix::Result<Value> {
 fn build(v: Value, path: Option<&Path>) -> PyResult<dynapix::Config> {
     guard(|| {
         dynapix::Config::from_value(v).map_err(|e| match (e, path) {
-            (dynapix::Error::Config { path: None, message }, Some(p)) => dynapix::Error::Config {
+            (
+                dynapix::Error::Config {
+                    path: None,
+                    message,
+                },
+                Some(p),
+            ) => dynapix::Error::Config {
                 path: Some(p.to_path_buf()),
                 message,
             },
@@ -106,7 +115,10 @@ fn build(v: Value, path: Option<&Path>) -> PyResult<dynapix::Config> {
 
 impl Config {
     /// `values` (None, a dict, a `Config` or a file path) with keyword overrides.
-    pub fn from_any(values: Option<&Bound<'_, PyAny>>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+    pub fn from_any(
+        values: Option<&Bound<'_, PyAny>>,
+        overrides: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
         let (mut v, path) = match values {
             None => (Value::Object(Default::default()), None),
             Some(obj) if obj.is_none() => (Value::Object(Default::default()), None),
@@ -143,7 +155,10 @@ impl Config {
     /// ``values["a"]["b"]``). Raises ``ConfigError`` for unknown keys or invalid values.
     #[new]
     #[pyo3(signature = (values=None, /, **overrides))]
-    fn new(values: Option<&Bound<'_, PyAny>>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+    fn new(
+        values: Option<&Bound<'_, PyAny>>,
+        overrides: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
         Self::from_any(values, overrides)
     }
 
@@ -165,7 +180,10 @@ impl Config {
     /// A configuration from a dict with keyword overrides.
     #[staticmethod]
     #[pyo3(signature = (values, /, **overrides))]
-    fn from_dict(values: &Bound<'_, PyDict>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+    fn from_dict(
+        values: &Bound<'_, PyDict>,
+        overrides: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
         Self::from_any(Some(values.as_any()), overrides)
     }
 

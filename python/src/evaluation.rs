@@ -18,7 +18,12 @@ pub struct EvalArgs(EvalOptions);
 
 impl EvalArgs {
     /// Options from `sim3`, the RPE spacing (seconds or frames, not both) and `max_diff`.
-    pub fn new(sim3: bool, rpe_seconds: Option<f64>, rpe_frames: Option<usize>, max_diff: f64) -> PyResult<Self> {
+    pub fn new(
+        sim3: bool,
+        rpe_seconds: Option<f64>,
+        rpe_frames: Option<usize>,
+        max_diff: f64,
+    ) -> PyResult<Self> {
         let rpe = match (rpe_seconds, rpe_frames) {
             (Some(_), Some(_)) => return Err(config("give rpe_seconds or rpe_frames, not both")),
             (Some(s), None) if !(s.is_finite() && s > 0.0) => {
@@ -29,7 +34,11 @@ impl EvalArgs {
             (None, Some(k)) => Some(RpeDelta::Frames(k)),
             (None, None) => None,
         };
-        Ok(Self(EvalOptions { sim3, rpe, max_diff }))
+        Ok(Self(EvalOptions {
+            sim3,
+            rpe,
+            max_diff,
+        }))
     }
 }
 
@@ -95,7 +104,9 @@ pub fn evaluate<'py>(
         Some(r) if r.is_none() => None,
         Some(r) if r.is_instance_of::<PyString>() || r.hasattr("__fspath__")? => {
             let p: PathBuf = r.extract()?;
-            Some(compute(py, move || dynapix::evaluate::read_reference_stamps(&p))?)
+            Some(compute(py, move || {
+                dynapix::evaluate::read_reference_stamps(&p)
+            })?)
         }
         Some(r) => Some(arrays::stamps(r, "reference")?),
     };
@@ -104,7 +115,10 @@ pub fn evaluate<'py>(
 
 /// Reads a TUM trajectory file as ``(timestamps, poses)`` (N and N×4×4 float64).
 #[pyfunction]
-pub fn read_trajectory(py: Python<'_>, path: PathBuf) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+pub fn read_trajectory(
+    py: Python<'_>,
+    path: PathBuf,
+) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
     let v = compute(py, move || dynapix::evaluate::read_trajectory(&path))?;
     split(py, v)
 }
@@ -112,14 +126,23 @@ pub fn read_trajectory(py: Python<'_>, path: PathBuf) -> PyResult<(Bound<'_, PyA
 /// Reads a ground-truth file as camera poses ``(timestamps, poses)`` (Bonn marker poses
 /// converted to the camera, as ``dynapix run`` evaluates).
 #[pyfunction]
-pub fn read_ground_truth(py: Python<'_>, path: PathBuf) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+pub fn read_ground_truth(
+    py: Python<'_>,
+    path: PathBuf,
+) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
     let v = compute(py, move || dynapix::evaluate::read_ground_truth(&path))?;
     split(py, v)
 }
 
-fn split(py: Python<'_>, v: Vec<(f64, Se3)>) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+fn split(
+    py: Python<'_>,
+    v: Vec<(f64, Se3)>,
+) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
     let t = v.iter().map(|p| p.0).collect();
-    Ok((arrays::vec_array(py, t), arrays::poses_array(py, v.into_iter().map(|p| p.1))?))
+    Ok((
+        arrays::vec_array(py, t),
+        arrays::poses_array(py, v.into_iter().map(|p| p.1))?,
+    ))
 }
 
 /// Writes ``(timestamps, poses)`` (N and N×4×4 camera-to-world, or an N×8 TUM array), or
@@ -129,21 +152,27 @@ fn split(py: Python<'_>, v: Vec<(f64, Se3)>) -> PyResult<(Bound<'_, PyArray1<f64
 /// ``dynapix run --online``.
 #[pyfunction]
 #[pyo3(signature = (path, timestamps, poses=None))]
-pub fn save_trajectory(py: Python<'_>, path: PathBuf, timestamps: &Bound<'_, PyAny>, poses: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
-    let results: Option<Vec<(f64, Se3)>> = if poses.is_none() && timestamps.is_instance_of::<pyo3::types::PyList>() {
-        let list = timestamps.cast::<pyo3::types::PyList>()?;
-        let mut v = Vec::new();
-        let mut all = true;
-        for item in list.iter() {
-            match item.cast::<crate::online::FrameResult>() {
-                Ok(r) => v.extend(r.get().pose_wc.map(|p| (r.get().t, p))),
-                Err(_) => all = false,
+pub fn save_trajectory(
+    py: Python<'_>,
+    path: PathBuf,
+    timestamps: &Bound<'_, PyAny>,
+    poses: Option<&Bound<'_, PyAny>>,
+) -> PyResult<()> {
+    let results: Option<Vec<(f64, Se3)>> =
+        if poses.is_none() && timestamps.is_instance_of::<pyo3::types::PyList>() {
+            let list = timestamps.cast::<pyo3::types::PyList>()?;
+            let mut v = Vec::new();
+            let mut all = true;
+            for item in list.iter() {
+                match item.cast::<crate::online::FrameResult>() {
+                    Ok(r) => v.extend(r.get().pose_wc.map(|p| (r.get().t, p))),
+                    Err(_) => all = false,
+                }
             }
-        }
-        all.then_some(v)
-    } else {
-        None
-    };
+            all.then_some(v)
+        } else {
+            None
+        };
     let v = match (results, poses) {
         (Some(v), _) => v,
         (None, Some(p)) => {

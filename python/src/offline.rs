@@ -96,7 +96,10 @@ impl Sequence {
 
     /// ``(timestamps, poses)`` of ``groundtruth.txt`` as camera-to-world 4×4 poses (Bonn
     /// marker poses converted), or None without ground truth.
-    fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
+    fn ground_truth<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
         let Some(gt) = &self.input.sequence.groundtruth else {
             return Ok(None);
         };
@@ -109,7 +112,12 @@ impl Sequence {
     /// the file's uint16 values with ``raw_depth=True``. Raises ``DataError`` for a frame
     /// whose files cannot be used.
     #[pyo3(signature = (i, *, raw_depth=false))]
-    fn frame<'py>(&self, py: Python<'py>, i: usize, raw_depth: bool) -> PyResult<(f64, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    fn frame<'py>(
+        &self,
+        py: Python<'py>,
+        i: usize,
+        raw_depth: bool,
+    ) -> PyResult<(f64, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         if i >= self.input.len() {
             return Err(pyo3::exceptions::PyIndexError::new_err(format!(
                 "frame {i} is out of range (the sequence has {} frames)",
@@ -205,7 +213,10 @@ pub struct RunResult {
 }
 
 /// The stamps and poses of a trajectory as arrays.
-fn trajectory_arrays<'py>(py: Python<'py>, t: &Trajectory) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+fn trajectory_arrays<'py>(
+    py: Python<'py>,
+    t: &Trajectory,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
     Ok((
         arrays::vec_array(py, t.poses.iter().map(|p| p.t).collect()),
         arrays::poses_array(py, t.poses.iter().map(|p| p.pose))?,
@@ -253,7 +264,10 @@ impl RunResult {
 
     /// ``(timestamps, poses)`` of the first pass (the poses the first motion maps used),
     /// or None for a single-pass method.
-    fn first_pass<'py>(&self, py: Python<'py>) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
+    fn first_pass<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
         self.first_pass
             .as_ref()
             .map(|t| trajectory_arrays(py, t))
@@ -318,9 +332,10 @@ impl RunResult {
         let gt = match gt {
             Some(g) => evaluation::poses_arg(g, "gt", true)?,
             None => {
-                let p = self.groundtruth.clone().ok_or_else(|| {
-                    data("the sequence has no groundtruth.txt: pass gt=...")
-                })?;
+                let p = self
+                    .groundtruth
+                    .clone()
+                    .ok_or_else(|| data("the sequence has no groundtruth.txt: pass gt=..."))?;
                 compute(py, move || dynapix::evaluate::read_ground_truth(&p))?
             }
         };

@@ -51,7 +51,11 @@ impl FrameResult {
     fn pose<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         self.pose_wc
             .as_ref()
-            .map(|p| Ok(PyArray1::from_vec(py, arrays::matrix(p).to_vec()).reshape([4, 4])?.into_any()))
+            .map(|p| {
+                Ok(PyArray1::from_vec(py, arrays::matrix(p).to_vec())
+                    .reshape([4, 4])?
+                    .into_any())
+            })
             .transpose()
     }
 
@@ -107,6 +111,34 @@ impl Online {
     fn size(&self) -> (u32, u32) {
         (self.camera.settings.width, self.camera.settings.height)
     }
+
+    /// A frame of the library from numpy arrays (checked; one copy each).
+    fn frame(
+        &self,
+        t: f64,
+        rgb: &Bound<'_, PyAny>,
+        depth: &Bound<'_, PyAny>,
+        mask: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<RgbdFrame> {
+        let size = self.size();
+        let rgb = arrays::rgb_image(rgb, size)?;
+        let depth = arrays::depth_image(depth, size, self.camera.settings.depth_map_factor)?;
+        let mask = mask
+            .filter(|m| !m.is_none())
+            .map(|m| arrays::mask_image(m, size))
+            .transpose()?;
+        if self.needs_masks && mask.is_none() {
+            return Err(data(
+                "the dynapix+ method needs a mask with every frame (mask=...)",
+            ));
+        }
+        Ok(RgbdFrame {
+            t,
+            rgb,
+            depth,
+            mask,
+        })
+    }
 }
 
 #[pymethods]
@@ -142,7 +174,13 @@ impl Online {
     /// lookahead fills. ``mask`` (H×W uint8, non-zero = dynamic class) is required by
     /// ``dynapix+``. Raises ``DataError`` for a wrong dtype, shape or size or a time that
     /// does not increase.
-    #[pyo3(signature = (t, rgb, depth, mask=None))]
+    ///
+    /// ``next``, the frame that will be pushed after this one as ``(t, rgb, depth)`` (or
+    /// ``(t, rgb, depth, mask)``), when the caller already has it (frames read from files, a
+    /// camera queue): the part of its motion map that needs no pose is then computed beside
+    /// this frame's tracking, as ``dynapix run --online`` does. The results are the same with
+    /// or without it.
+    #[pyo3(signature = (t, rgb, depth, mask=None, *, next=None))]
     fn push(
         &mut self,
         py: Python<'_>,
@@ -150,6 +188,7 @@ impl Online {
         rgb: &Bound<'_, PyAny>,
         depth: &Bound<'_, PyAny>,
         mask: Option<&Bound<'_, PyAny>>,
+        next: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Option<FrameResult>> {
         if !t.is_finite() {
             return Err(data(format!("t must be a finite time in seconds, got {t}")));
@@ -160,14 +199,24 @@ impl Online {
                 self.pushed
             )));
         }
-        let size = self.size();
-        let rgb = arrays::rgb_image(rgb, size)?;
-        let depth = arrays::depth_image(depth, size, self.camera.settings.depth_map_factor)?;
-        let mask = mask.filter(|m| !m.is_none()).map(|m| arrays::mask_image(m, size)).transpose()?;
-        if self.needs_masks && mask.is_none() {
-            return Err(data("the dynapix+ method needs a mask with every frame (mask=...)"));
-        }
-        let frame = RgbdFrame { t, rgb, depth, mask };
+        let frame = self.frame(t, rgb, depth, mask)?;
+        let next = match next.filter(|n| !n.is_none()) {
+            None => None,
+            Some(n) => {
+                let items: Vec<Bound<'_, PyAny>> = n.extract().map_err(|_| {
+                    data("next must be a tuple (t, rgb, depth) or (t, rgb, depth, mask)")
+                })?;
+                if !(3..=4).contains(&items.len()) {
+                    return Err(data(
+                        "next must be a tuple (t, rgb, depth) or (t, rgb, depth, mask)",
+                    ));
+                }
+                let nt: f64 = items[0]
+                    .extract()
+                    .map_err(|_| data("next: t must be a number"))?;
+                Some(self.frame(nt, &items[1], &items[2], items.get(3))?)
+            }
+        };
         let mut guard_ = self
             .inner
             .lock()
@@ -176,7 +225,7 @@ impl Online {
             .as_mut()
             .filter(|_| !self.finished)
             .ok_or_else(|| data("finish() was called: make a new Online to push more frames"))?;
-        let r = compute(py, || online.push(frame))?;
+        let r = compute(py, || online.push_before(frame, next.as_ref()))?;
         self.pushed += 1;
         self.last_t = Some(t);
         Ok(r.map(FrameResult::from))
@@ -200,7 +249,10 @@ impl Online {
     /// ``(timestamps, poses)`` of the system's current estimate of every tracked frame
     /// (refined by bundle adjustment and loop closing since it was reported), what
     /// ``dynapix run --online`` writes to ``trajectory_refined.txt``.
-    fn refined_trajectory<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+    fn refined_trajectory<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
         let g = self
             .inner
             .lock()

@@ -66,7 +66,9 @@ impl SyntheticSequence {
             height,
             realism: guard(|| Realism::from_name(realism))?,
         };
-        let inner = compute(py, move || dynapix::synthetic::SyntheticSequence::new(&options))?;
+        let inner = compute(py, move || {
+            dynapix::synthetic::SyntheticSequence::new(&options)
+        })?;
         Ok(Self { inner })
     }
 

@@ -54,7 +54,9 @@ impl EvalOptions {
 fn eval_error(e: EvalError) -> Error {
     match e {
         EvalError::Io { path, source } => Error::file(path, source.to_string()),
-        EvalError::Parse { path, line, reason } => Error::file(path, format!("line {line}: {reason}")),
+        EvalError::Parse { path, line, reason } => {
+            Error::file(path, format!("line {line}: {reason}"))
+        }
         EvalError::File(e) => Error::Io(e),
         other => Error::Input(other.to_string()),
     }
