@@ -11,6 +11,9 @@ use pyo3::prelude::*;
 
 use crate::errors::data;
 
+/// A trajectory as arrays: timestamps (N) and camera-to-world poses (N×4×4).
+pub type Stamped<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>);
+
 /// Depth in metres as the library takes it.
 pub type DepthImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 
@@ -211,7 +214,7 @@ pub fn stamped_poses(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<(f64, S
             .enumerate()
             .map(|(i, r)| {
                 let q = nalgebra::Quaternion::new(r[7], r[4], r[5], r[6]);
-                if !(q.norm() > 1e-9) || r.iter().any(|x| !x.is_finite()) {
+                if r.iter().any(|x| !x.is_finite()) || q.norm() <= 1e-9 {
                     return Err(data(format!("{what} row {i}: not a pose")));
                 }
                 Ok((

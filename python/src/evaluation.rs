@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use dynapix::evaluate::{EvalOptions, RpeDelta};
 use dynapix_geometry::Se3;
-use numpy::{PyArray1, PyArray3};
 use pyo3::prelude::*;
 use pyo3::types::PyString;
 
@@ -115,10 +114,7 @@ pub fn evaluate<'py>(
 
 /// Reads a TUM trajectory file as ``(timestamps, poses)`` (N and N×4×4 float64).
 #[pyfunction]
-pub fn read_trajectory(
-    py: Python<'_>,
-    path: PathBuf,
-) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+pub fn read_trajectory(py: Python<'_>, path: PathBuf) -> PyResult<arrays::Stamped<'_>> {
     let v = compute(py, move || dynapix::evaluate::read_trajectory(&path))?;
     split(py, v)
 }
@@ -126,18 +122,12 @@ pub fn read_trajectory(
 /// Reads a ground-truth file as camera poses ``(timestamps, poses)`` (Bonn marker poses
 /// converted to the camera, as ``dynapix run`` evaluates).
 #[pyfunction]
-pub fn read_ground_truth(
-    py: Python<'_>,
-    path: PathBuf,
-) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+pub fn read_ground_truth(py: Python<'_>, path: PathBuf) -> PyResult<arrays::Stamped<'_>> {
     let v = compute(py, move || dynapix::evaluate::read_ground_truth(&path))?;
     split(py, v)
 }
 
-fn split(
-    py: Python<'_>,
-    v: Vec<(f64, Se3)>,
-) -> PyResult<(Bound<'_, PyArray1<f64>>, Bound<'_, PyArray3<f64>>)> {
+fn split(py: Python<'_>, v: Vec<(f64, Se3)>) -> PyResult<arrays::Stamped<'_>> {
     let t = v.iter().map(|p| p.0).collect();
     Ok((
         arrays::vec_array(py, t),

@@ -96,10 +96,7 @@ impl Sequence {
 
     /// ``(timestamps, poses)`` of ``groundtruth.txt`` as camera-to-world 4×4 poses (Bonn
     /// marker poses converted), or None without ground truth.
-    fn ground_truth<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
+    fn ground_truth<'py>(&self, py: Python<'py>) -> PyResult<Option<arrays::Stamped<'py>>> {
         let Some(gt) = &self.input.sequence.groundtruth else {
             return Ok(None);
         };
@@ -213,10 +210,7 @@ pub struct RunResult {
 }
 
 /// The stamps and poses of a trajectory as arrays.
-fn trajectory_arrays<'py>(
-    py: Python<'py>,
-    t: &Trajectory,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+fn trajectory_arrays<'py>(py: Python<'py>, t: &Trajectory) -> PyResult<arrays::Stamped<'py>> {
     Ok((
         arrays::vec_array(py, t.poses.iter().map(|p| p.t).collect()),
         arrays::poses_array(py, t.poses.iter().map(|p| p.pose))?,
@@ -264,10 +258,7 @@ impl RunResult {
 
     /// ``(timestamps, poses)`` of the first pass (the poses the first motion maps used),
     /// or None for a single-pass method.
-    fn first_pass<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> PyResult<Option<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)>> {
+    fn first_pass<'py>(&self, py: Python<'py>) -> PyResult<Option<arrays::Stamped<'py>>> {
         self.first_pass
             .as_ref()
             .map(|t| trajectory_arrays(py, t))

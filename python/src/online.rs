@@ -4,8 +4,8 @@
 use std::sync::Mutex;
 
 use dynapix::{OnlineDynaPix, RgbdFrame};
+use numpy::PyArray1;
 use numpy::prelude::*;
-use numpy::{PyArray1, PyArray3};
 use pyo3::prelude::*;
 
 use crate::arrays;
@@ -249,10 +249,7 @@ impl Online {
     /// ``(timestamps, poses)`` of the system's current estimate of every tracked frame
     /// (refined by bundle adjustment and loop closing since it was reported), what
     /// ``dynapix run --online`` writes to ``trajectory_refined.txt``.
-    fn refined_trajectory<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+    fn refined_trajectory<'py>(&self, py: Python<'py>) -> PyResult<arrays::Stamped<'py>> {
         let g = self
             .inner
             .lock()
