@@ -58,6 +58,7 @@ pub mod bench;
 pub mod config;
 pub mod cues;
 pub mod error;
+pub mod evaluate;
 pub mod hash;
 pub mod input;
 pub mod maps;
@@ -68,6 +69,7 @@ pub mod poses;
 pub mod profile;
 pub mod progress;
 pub mod slam;
+pub mod synthetic;
 
 pub use bench::{BenchReport, bench_offline, bench_online};
 pub use config::{
