@@ -128,7 +128,11 @@ fn saturated_depth_is_missing_depth_and_does_not_ruin_tracking() {
          TR {tr_sat:.2}"
     );
     assert_eq!(bad_clean, 0);
-    assert_eq!(bad_sat, SATURATED.len(), "every saturated frame is reported");
+    assert_eq!(
+        bad_sat,
+        SATURATED.len(),
+        "every saturated frame is reported"
+    );
     assert!(tr_sat >= 0.8, "offline tracking rate {tr_sat:.2}");
     assert!(
         ate_sat <= 2.0 * ate_clean.max(0.01),
@@ -163,7 +167,12 @@ fn without_the_rule_the_saturated_frames_are_read_as_depth() {
     assert!(d.iter().all(|&z| (z - 65535.0 / 5000.0).abs() < 1e-3));
     assert_eq!(input.sequence.invalid_depth().frames, 0);
     let on = Input::open(&sat, &Config::default().sequence, &CameraChoice::Sequence).unwrap();
-    assert!(on.load_depth(SATURATED[0]).unwrap().iter().all(|&z| z == 0.0));
+    assert!(
+        on.load_depth(SATURATED[0])
+            .unwrap()
+            .iter()
+            .all(|&z| z == 0.0)
+    );
     let (_, rgb_depth) = on.load_rgbd(SATURATED[1]).unwrap();
     assert!(rgb_depth.iter().all(|&z| z == 0.0));
     assert_eq!(on.sequence.invalid_depth().frames, 2);
