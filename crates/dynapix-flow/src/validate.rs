@@ -70,8 +70,10 @@ mod tests {
             Validate::validate(&p).unwrap_err().key,
             "variational.sor_iterations"
         );
-        p = DisParams::default();
-        p.patch_size = 0;
+        let p = DisParams {
+            patch_size: 0,
+            ..Default::default()
+        };
         assert_eq!(Validate::validate(&p).unwrap_err().key, "patch_size");
     }
 }

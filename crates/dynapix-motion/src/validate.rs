@@ -199,14 +199,20 @@ mod tests {
         p.movable.clip_hi = 10.0;
         let e = p.validate().unwrap_err().to_string();
         assert!(e.starts_with("movable.clip_hi must exceed clip_lo"), "{e}");
-        let mut r = RigidityParams::default();
-        r.refine_rounds = 1_000_000_000_000;
+        let r = RigidityParams {
+            refine_rounds: 1_000_000_000_000,
+            ..Default::default()
+        };
         assert_eq!(Validate::validate(&r).unwrap_err().key, "refine_rounds");
-        let mut r = RigidityParams::default();
-        r.ransac_confidence = -1.0;
+        let r = RigidityParams {
+            ransac_confidence: -1.0,
+            ..Default::default()
+        };
         assert_eq!(Validate::validate(&r).unwrap_err().key, "ransac_confidence");
-        let mut p = MotionParams::default();
-        p.offsets = vec![-1, 0];
+        let p = MotionParams {
+            offsets: vec![-1, 0],
+            ..Default::default()
+        };
         assert_eq!(p.validate().unwrap_err().key, "offsets[1]");
     }
 }

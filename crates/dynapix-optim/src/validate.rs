@@ -66,16 +66,22 @@ mod tests {
         PoseOnlyParams::default().validate().unwrap();
         BaParams::default().validate().unwrap();
         PoseGraphParams::default().validate().unwrap();
-        let mut p = PoseOnlyParams::default();
-        p.rounds = 1_000_000_000_000;
+        let p = PoseOnlyParams {
+            rounds: 1_000_000_000_000,
+            ..Default::default()
+        };
         let e = p.validate().unwrap_err();
         assert_eq!(e.key, "rounds");
         assert!(e.to_string().contains("[1, 100]"), "{e}");
-        let mut b = BaParams::default();
-        b.chi2_stereo = -1.0;
+        let b = BaParams {
+            chi2_stereo: -1.0,
+            ..Default::default()
+        };
         assert_eq!(b.validate().unwrap_err().key, "chi2_stereo");
-        b = BaParams::default();
-        b.min_relative_decrease = 1.0;
+        let b = BaParams {
+            min_relative_decrease: 1.0,
+            ..Default::default()
+        };
         assert_eq!(b.validate().unwrap_err().key, "min_relative_decrease");
     }
 }

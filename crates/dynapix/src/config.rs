@@ -1314,12 +1314,7 @@ mod tests {
     /// The numbers of a configuration document with their key paths (`a.b[2]`), nulls
     /// (unset options) included.
     fn numeric_leaves(v: &Value, at: &str, out: &mut Vec<(String, String)>) {
-        let pointer = |key: &str| {
-            format!(
-                "/{}",
-                key.replace('.', "/").replace('[', "/").replace(']', "")
-            )
-        };
+        let pointer = |key: &str| format!("/{}", key.replace(['.', '['], "/").replace(']', ""));
         match v {
             Value::Object(m) => {
                 for (k, child) in m {
