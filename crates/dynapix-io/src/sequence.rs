@@ -973,6 +973,7 @@ mod writer_tests {
     /// `association.txt` and, when given, `groundtruth.txt`.
     fn write_dynapix_sequence(dir: &Path, frames: &[FrameData], gt: Option<&Trajectory>) {
         let settings = Settings::tum3();
+        std::fs::create_dir_all(dir).unwrap();
         settings.write(dir.join(SEQUENCE_SETTINGS_FILE)).unwrap();
         let sub = |s: &str, name: &str| {
             std::fs::create_dir_all(dir.join(s)).unwrap();

@@ -66,10 +66,14 @@ mod tests {
             eprintln!("skipping: no /proc/self on this system");
             return;
         };
+        // Busy work until the CPU clock has advanced 50 ms (on a loaded machine that takes
+        // longer than 50 ms of wall time); a clock that never advances fails after 20 s.
         let start = std::time::Instant::now();
         let mut x = 0u64;
-        while start.elapsed().as_millis() < 100 {
-            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        while cpu_seconds().is_some_and(|c| c < before + 0.05) && start.elapsed().as_secs() < 20 {
+            for _ in 0..100_000 {
+                x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+            }
         }
         let after = process_usage().unwrap();
         assert!(after.cpu_seconds >= before + 0.05, "{before} {after:?}");
