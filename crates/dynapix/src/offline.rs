@@ -289,7 +289,11 @@ impl<'a> OfflineRunner<'a> {
             }
             options.cache_dir = Some(dir);
         }
-        if let Some(dir) = &options.cache_dir {
+        // Only runs that cache (DynaPix: first pass and maps) need it, so an ORB-SLAM2 run
+        // creates no cache folder.
+        if config.method.terms().is_some()
+            && let Some(dir) = &options.cache_dir
+        {
             check_cache_dir(dir)?;
         }
         let r = Self {
