@@ -40,6 +40,15 @@ def non_test_lines(text):
             depth = 0
             opened = False
             j = i + 1
+            if not lines[i].startswith((" ", "\t")):
+                # A top-level item: rustfmt closes it with a `}` (or ends it with a `;`) at the
+                # start of a line, whatever its string literals hold.
+                while j < len(lines) and lines[j] != "}" and not (
+                    j == i + 1 and lines[j].rstrip().endswith(";")
+                ):
+                    j += 1
+                i = j + 1
+                continue
             while j < len(lines):
                 code = strip_strings_and_comments(lines[j])
                 depth += code.count("{") - code.count("}")
