@@ -2,7 +2,7 @@
 //! per second, peak memory and where the time went, stage by stage ([`crate::profile`]).
 //!
 //! An offline bench computes everything (first pass, rigidity maps, motion maps, every pass)
-//! in a fresh temporary cache, so nothing is reused from an earlier run; an online bench
+//! in memory without a cache, so nothing is reused from an earlier run; an online bench
 //! pushes the frames through [`OnlineDynaPix`] one by one and also reports per-frame latency.
 
 use std::path::PathBuf;
@@ -149,28 +149,6 @@ impl BenchReport {
     }
 }
 
-/// A fresh cache folder for one bench, removed when dropped.
-struct TempCache(PathBuf);
-
-impl TempCache {
-    fn new() -> Result<Self> {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0);
-        let dir =
-            std::env::temp_dir().join(format!("dynapix-bench-{}-{nanos}", std::process::id()));
-        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
-        Ok(Self(dir))
-    }
-}
-
-impl Drop for TempCache {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 struct Clock {
     wall: Instant,
     cpu: Option<f64>,
@@ -222,7 +200,8 @@ impl Clock {
     }
 }
 
-/// Runs `config` offline on `input` from scratch (a fresh temporary cache) and measures it.
+/// Runs `config` offline on `input` from scratch (no cache: nothing is read from or written
+/// to disk but the sequence's frames) and measures it.
 /// Returns the report and the run's output (for scoring).
 pub fn bench_offline(
     config: &Config,
@@ -230,12 +209,12 @@ pub fn bench_offline(
     profiler: &StageProfiler,
     progress: &dyn Progress,
 ) -> Result<(BenchReport, OfflineOutput)> {
-    let cache = TempCache::new()?;
+    // No cache: everything is computed and kept in memory, nothing is written or read back.
     let runner = OfflineRunner::new(
         config,
         input,
         RunOptions {
-            cache_dir: Some(cache.0.clone()),
+            cache_dir: None,
             recompute_maps: true,
             ..RunOptions::default()
         },

@@ -68,6 +68,7 @@ pub mod poses;
 pub mod profile;
 pub mod progress;
 pub mod slam;
+pub mod store;
 
 pub use bench::{BenchReport, bench_offline, bench_online};
 pub use config::{

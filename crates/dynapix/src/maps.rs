@@ -10,11 +10,11 @@
 //! cache key is a hash of it. Reading a folder back gives its provenance, so maps made with
 //! ground-truth poses are reported as such.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
-use dynapix_io::images::{read_depth, read_depth_raw, read_rgb, write_motion_probability};
+use dynapix_io::images::{read_depth, read_depth_raw, read_rgb};
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
     RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
@@ -29,14 +29,15 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+pub use crate::store::{
+    MapFolder, MapSet, RECORD_FILE, as_read_back, record_uses_ground_truth,
+};
+use crate::store::MapSink;
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
 /// through the lens distortion of distorted cameras; 3: cues combined by noisy-or).
 pub const MOTION_MAPS_VERSION: u32 = 3;
-
-/// The record file of a map folder.
-pub const RECORD_FILE: &str = "motion.json";
 
 /// The frames of an [`Input`] as a motion-map frame loader.
 pub struct SequenceLoader<'a> {
@@ -354,15 +355,7 @@ impl<'a> MapJob<'a> {
             }
             if self.cues.rigidity {
                 let r = match &self.rigidity {
-                    Some(set) => {
-                        let path = set
-                            .folder
-                            .map_path(self.input, i)
-                            .ok_or("frame without a file name")?;
-                        let _stage =
-                            tracing::info_span!(target: "dynapix::stage", "read maps").entered();
-                        dynapix_io::images::read_motion_probability(path)?.into_image()
-                    }
+                    Some(set) => set.probability(self.input, i)?.into_image(),
                     None => rig_job.frame(i)?,
                 };
                 noisy_or(p, &r)?;
@@ -431,170 +424,39 @@ impl<'a> MapJob<'a> {
     }
 }
 
-/// A folder of motion maps with its `motion.json`.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct MapFolder {
-    /// The folder.
-    pub dir: PathBuf,
-}
-
-impl MapFolder {
-    /// The folder `dir`.
-    pub fn new(dir: impl Into<PathBuf>) -> Self {
-        Self { dir: dir.into() }
-    }
-
-    /// The map file of frame `i` of `input` (`<rgb name>.png`).
-    pub fn map_path(&self, input: &Input, i: usize) -> Option<PathBuf> {
-        Some(self.dir.join(input.map_name(i)?))
-    }
-
-    /// The record, when the folder has one.
-    pub fn read_record(&self) -> Option<Result<Value>> {
-        let path = self.dir.join(RECORD_FILE);
-        let text = std::fs::read_to_string(&path).ok()?;
-        Some(
-            serde_json::from_str(&text)
-                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
-        )
-    }
-
-    /// Writes the record atomically.
-    pub fn write_record(
-        &self,
-        input: &Input,
-        config: &Value,
-        status: &str,
-        results: Value,
-    ) -> Result<()> {
-        std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
-        let doc = json!({
-            "sequence": input.sequence.dir,
-            "config": config,
-            "status": status,
-            "results": results,
-        });
-        let text = serde_json::to_string_pretty(&doc)
-            .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
-        dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
-        Ok(())
-    }
-
-    /// The cache folder `<root>/<prefix>-<key>` of the maps that `config` (their record's
-    /// `config` document) describes, its key, and whether it already holds them complete.
-    pub fn in_cache(
-        root: &Path,
-        prefix: &str,
-        input: &Input,
-        config: &Value,
-    ) -> (Self, String, bool) {
-        let key = Fnv64::of(config.to_string().as_bytes());
-        let folder = Self::new(root.join(format!("{prefix}-{key}")));
-        let reused = folder.is_complete(input, config);
-        (folder, key, reused)
-    }
-
-    /// True when the record says `config`, the run completed, and every frame's map exists
-    /// (bad frames of a run that skips them have none).
-    pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
-        let Some(Ok(rec)) = self.read_record() else {
-            return false;
-        };
-        rec.get("config") == Some(&as_read_back(config))
-            && rec.get("status").and_then(Value::as_str) == Some("complete")
-            && (0..input.len())
-                .all(|i| input.is_bad(i) || self.map_path(input, i).is_some_and(|p| p.is_file()))
-    }
-
-    /// Writes the map of one frame atomically.
-    pub fn write_map(&self, input: &Input, i: usize, p: &MotionProbability) -> Result<()> {
-        let path = self
-            .map_path(input, i)
-            .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
-        let _stage = tracing::info_span!(target: "dynapix::stage", "write maps").entered();
-        write_motion_probability(path, p)?;
-        Ok(())
-    }
-}
-
-/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
-/// the last place away from the value that was written, so a record read from a file is
-/// compared with the expected record after the same round trip.
-pub fn as_read_back(v: &Value) -> Value {
-    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
-}
-
-/// Where the maps of a pass came from and what made them.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MapSet {
-    /// The folder of the maps.
-    pub folder: MapFolder,
-    /// Provenance (written into `run.json`).
-    pub record: Value,
-    /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
-    /// a record).
-    pub ground_truth: Option<bool>,
-}
-
-impl MapSet {
-    /// The maps of a folder made elsewhere (a sequence's own `prob/`): provenance from its
-    /// `motion.json` when it has one.
-    pub fn existing(folder: MapFolder, source: &str) -> Result<Self> {
-        let mut record = json!({"source": source, "dir": folder.dir});
-        let ground_truth = match folder.read_record() {
-            None => {
-                record["provenance"] = json!("unknown: no motion.json beside the maps");
-                None
-            }
-            Some(Err(e)) => return Err(e),
-            Some(Ok(rec)) => {
-                let gt = record_uses_ground_truth(&rec);
-                record["poses"] = json!(match gt {
-                    Some(true) => "ground truth",
-                    Some(false) => "not ground truth",
-                    None => "unknown",
-                });
-                record["motion_json"] = rec;
-                gt
-            }
-        };
-        Ok(Self {
-            folder,
-            record,
-            ground_truth,
-        })
-    }
-}
-
-/// Whether a `motion.json` record says its maps were made with ground-truth poses
-/// (`None` when it does not say).
-pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
-    let poses = rec.pointer("/config/poses")?;
-    if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
-        return Some(src == "ground_truth");
-    }
-    // Records written before provenance was structured: `"source": "gt" | "file"`.
-    match poses.get("source").and_then(Value::as_str)? {
-        "gt" => Some(true),
-        "file" => Some(false),
-        _ => None,
-    }
-}
-
-/// The maps of `job` in the cache folder `root`: a folder `maps-<key>` is reused when its
-/// record matches the job exactly and every map exists, else (re)computed completely.
+/// The maps of `job`, with the cache folder `root` when given: a folder `maps-<key>` is
+/// reused when its record matches the job exactly and every map exists, else the maps are
+/// computed, kept in memory and written there as they come. Without a cache nothing is
+/// written.
 pub fn cached_maps(
     job: &MapJob<'_>,
-    root: &Path,
+    root: Option<&Path>,
     label: &str,
     progress: &dyn Progress,
 ) -> Result<MapSet> {
     let config = job.record();
-    let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
-    if !reused {
-        compute_into(job, &folder, &config, label, progress)?;
-    }
     let ground_truth = job.poses.origin.is_ground_truth();
+    let Some(root) = root else {
+        let memory = compute_maps(job, None, &config, label, progress)?.0;
+        return Ok(MapSet {
+            folder: None,
+            memory: Some(memory),
+            record: json!({
+                "source": "computed (no cache)",
+                "dir": null,
+                "poses": job.poses.origin,
+                "ground_truth_poses": ground_truth,
+                "config": config,
+            }),
+            ground_truth: Some(ground_truth),
+        });
+    };
+    let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
+    let memory = if reused {
+        None
+    } else {
+        Some(compute_maps(job, Some(&folder), &config, label, progress)?.0)
+    };
     let record = json!({
         "source": if reused { "cache (key matched)" } else { "computed" },
         "dir": folder.dir,
@@ -604,7 +466,8 @@ pub fn cached_maps(
         "config": config,
     });
     Ok(MapSet {
-        folder,
+        folder: Some(folder),
+        memory,
         record,
         ground_truth: Some(ground_truth),
     })
@@ -619,29 +482,46 @@ pub fn compute_into(
     label: &str,
     progress: &dyn Progress,
 ) -> Result<SequenceStats> {
+    compute_maps(job, Some(folder), config, label, progress).map(|(_, stats)| stats)
+}
+
+/// Computes every frame of `job` (but the bad frames of a run that skips them) into memory,
+/// and into `folder` when given (recorded complete at the end).
+fn compute_maps(
+    job: &MapJob<'_>,
+    folder: Option<&MapFolder>,
+    config: &Value,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<(crate::store::MemoryMaps, SequenceStats)> {
     let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
-    folder.write_record(job.input, config, "running", Value::Null)?;
+    if let Some(f) = folder {
+        f.write_record(job.input, config, "running", Value::Null)?;
+    }
+    let sink = MapSink::new(job.input, folder);
     let all: Vec<usize> = (0..n).filter(|&i| !job.input.is_bad(i)).collect();
     let task = Task::begin(progress, label, all.len());
     let stats = job.run(
         &all,
         |m| {
-            folder.write_map(job.input, m.index, &MotionProbability::new(m.p))?;
+            sink.put(m.index, &MotionProbability::new(m.p))?;
             Ok(())
         },
         |_, ()| task.step(""),
     )?;
     drop(task);
-    folder.write_record(
-        job.input,
-        config,
-        "complete",
-        json!({
-            "frames_computed": stats.frames,
-            "compute_seconds": stats.compute_seconds,
-            "threads": rayon::current_num_threads(),
-        }),
-    )?;
-    Ok(stats)
+    if let Some(f) = folder {
+        f.write_record(
+            job.input,
+            config,
+            "complete",
+            json!({
+                "frames_computed": stats.frames,
+                "compute_seconds": stats.compute_seconds,
+                "threads": rayon::current_num_threads(),
+            }),
+        )?;
+    }
+    Ok((sink.finish(), stats))
 }

@@ -43,9 +43,11 @@ pub const SLAM_PASS_VERSION: u32 = 2;
 /// Options of a run that are about files, not about the method.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
-    /// Cache of first passes and motion maps (default [`default_cache_dir`]:
-    /// `<sequence>/dynapix_cache`, or a folder under the user's cache directory when the
-    /// sequence folder cannot be written).
+    /// Cache of first passes and motion maps: what is found there is reused, what is
+    /// computed is written there as a side effect. `None`: no cache, nothing is written
+    /// (everything is computed in memory). Callers that want the usual place give
+    /// [`default_cache_dir`] (`<sequence>/dynapix_cache`, or a folder under the user's cache
+    /// directory when the sequence folder cannot be written).
     pub cache_dir: Option<PathBuf>,
     /// Ignore the sequence's own `prob/` folder and compute the maps.
     pub recompute_maps: bool,
@@ -163,28 +165,23 @@ pub struct OfflineRunner<'a> {
     config: &'a Config,
     input: &'a Input,
     options: RunOptions,
+    /// The rigidity maps, once computed or found (they need no poses: one set per runner).
+    rigidity: std::sync::OnceLock<MapSet>,
+    /// The first pass, once run or found (the same for every run of the runner).
+    first: std::sync::OnceLock<FirstPassResult>,
 }
 
 impl<'a> OfflineRunner<'a> {
     /// A runner for `config` on `input`; checks the configuration and the method's inputs
     /// (DynaPix+ masks).
-    pub fn new(config: &'a Config, input: &'a Input, mut options: RunOptions) -> Result<Self> {
+    pub fn new(config: &'a Config, input: &'a Input, options: RunOptions) -> Result<Self> {
         config.validate()?;
-        if options.cache_dir.is_none() {
-            let dir = default_cache_dir(&input.sequence.dir);
-            if !dir.starts_with(&input.sequence.dir) {
-                tracing::info!(
-                    "{} is not writable: caching in {}",
-                    input.sequence.dir.display(),
-                    dir.display()
-                );
-            }
-            options.cache_dir = Some(dir);
-        }
         let r = Self {
             config,
             input,
             options,
+            rigidity: std::sync::OnceLock::new(),
+            first: std::sync::OnceLock::new(),
         };
         if config.method.needs_masks() {
             let d = r.masks_dir();
@@ -203,12 +200,9 @@ impl<'a> OfflineRunner<'a> {
         self.config
     }
 
-    /// The cache folder (resolved by [`OfflineRunner::new`]).
-    pub fn cache_dir(&self) -> PathBuf {
-        self.options
-            .cache_dir
-            .clone()
-            .unwrap_or_else(|| default_cache_dir(&self.input.sequence.dir))
+    /// The cache folder, when the run has one ([`RunOptions::cache_dir`]).
+    pub fn cache_dir(&self) -> Option<&Path> {
+        self.options.cache_dir.as_deref()
     }
 
     /// The DynaPix+ mask folder.
@@ -238,7 +232,7 @@ impl<'a> OfflineRunner<'a> {
         let weights = match maps {
             None => PassWeights::None,
             Some(m) => PassWeights::Maps {
-                dir: &m.folder.dir,
+                maps: m,
                 threshold: method
                     .thresholds()
                     .then_some(config.slam.params.map.dynapix.gamma_add),
@@ -265,9 +259,13 @@ impl<'a> OfflineRunner<'a> {
         if !wanted {
             return Ok(None);
         }
+        if let Some(m) = self.rigidity.get() {
+            return Ok(Some(m.clone()));
+        }
         let _ = self.input.bad_frames();
         let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
-        cached_rigidity(&job, &self.cache_dir(), "rigidity maps", progress).map(Some)
+        let maps = cached_rigidity(&job, self.cache_dir(), "rigidity maps", progress)?;
+        Ok(Some(self.rigidity.get_or_init(|| maps).clone()))
     }
 
     /// The cache key document of the first pass.
@@ -307,16 +305,14 @@ impl<'a> OfflineRunner<'a> {
                 record: json!({"source": "given by the caller"}),
             });
         }
+        if let Some(f) = self.first.get() {
+            return Ok(f.clone());
+        }
         let doc = self.first_pass_record();
         let key = Fnv64::of(doc.to_string().as_bytes());
-        let dir = self.cache_dir().join(format!("first-pass-{key}"));
-        let traj_path = dir.join("trajectory.txt");
-        let rec_path = dir.join("pass.json");
-        let recorded = std::fs::read_to_string(&rec_path)
-            .ok()
-            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
-        if recorded.as_ref().and_then(|r| r.get("config")) == Some(&as_read_back(&doc))
-            && let Ok(trajectory) = Trajectory::read_tum(&traj_path)
+        let dir = self.cache_dir().map(|c| c.join(format!("first-pass-{key}")));
+        if let Some(dir) = &dir
+            && let Some(trajectory) = read_cached_first_pass(dir, &doc)
         {
             return Ok(FirstPassResult {
                 trajectory,
@@ -349,15 +345,19 @@ impl<'a> OfflineRunner<'a> {
                 )?
             }
         };
-        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
-        out.trajectory.write_tum(&traj_path)?;
-        let rec = json!({"config": doc, "status": "complete", "stats": out.stats});
-        dynapix_io::write_atomic(&rec_path, rec.to_string().as_bytes())?;
-        Ok(FirstPassResult {
+        let source = match &dir {
+            Some(dir) => {
+                write_cached_first_pass(dir, &doc, &out)?;
+                "computed"
+            }
+            None => "computed (no cache)",
+        };
+        let result = FirstPassResult {
             trajectory: as_written(&out.trajectory)?,
-            record: json!({"source": "computed", "dir": dir, "key": key, "stats": out.stats}),
+            record: json!({"source": source, "dir": dir, "key": key, "stats": out.stats}),
             output: Some(out),
-        })
+        };
+        Ok(self.first.get_or_init(|| result).clone())
     }
 
     /// Poses for the maps of weighted pass `k` (1-based): the configured fixed source, or the
@@ -407,7 +407,7 @@ impl<'a> OfflineRunner<'a> {
         };
         let job = MapJob::new(self.input, self.config, poses).with_rigidity(rigidity);
         let label = format!("motion maps (pass {k})");
-        cached_maps(&job, &self.cache_dir(), &label, progress)
+        cached_maps(&job, self.cache_dir(), &label, progress)
     }
 
     /// The sequence's own maps, when this run uses them for the first weighted pass.
@@ -565,6 +565,26 @@ impl<'a> OfflineRunner<'a> {
             "config": c.to_json_value(),
         })
     }
+}
+
+/// The trajectory of the first pass cached in `dir`, when its record there says `doc`.
+fn read_cached_first_pass(dir: &Path, doc: &Value) -> Option<Trajectory> {
+    let recorded = std::fs::read_to_string(dir.join("pass.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok())?;
+    if recorded.get("config") != Some(&as_read_back(doc)) {
+        return None;
+    }
+    Trajectory::read_tum(dir.join("trajectory.txt")).ok()
+}
+
+/// Caches the first pass `out` of `doc` in `dir` (its trajectory, then its record).
+fn write_cached_first_pass(dir: &Path, doc: &Value, out: &PassOutput) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| dynapix_io::IoError::io(dir, e))?;
+    out.trajectory.write_tum(dir.join("trajectory.txt"))?;
+    let rec = json!({"config": doc, "status": "complete", "stats": out.stats});
+    dynapix_io::write_atomic(dir.join("pass.json"), rec.to_string().as_bytes())?;
+    Ok(())
 }
 
 #[cfg(test)]

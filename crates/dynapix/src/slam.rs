@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use dynapix_io::images::{read_mask, read_static_weights};
+use dynapix_io::images::read_mask;
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
 use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
@@ -24,6 +24,7 @@ use crate::config::VocabularyChoice;
 use crate::error::{BadFrame, Error, Result, StoppedPass};
 use crate::input::{Camera, Input};
 use crate::progress::{Progress, Task};
+use crate::store::MapSet;
 
 /// The status-file value of a tracking state.
 pub fn frame_status(state: TrackingState) -> FrameStatus {
@@ -311,10 +312,10 @@ impl SlamSession {
 pub enum PassWeights<'a> {
     /// None (ORB-SLAM2).
     None,
-    /// Probability maps in a folder, named like the rgb images (`.png`).
+    /// Probability maps of the frames (in memory or in a folder).
     Maps {
-        /// The folder.
-        dir: &'a Path,
+        /// The maps.
+        maps: &'a MapSet,
         /// Threshold ablation: P > γ drops a keypoint, the rest weighs 1.
         threshold: Option<f32>,
         /// A missing map runs its frame unweighted (counted) instead of stopping the pass.
@@ -370,26 +371,23 @@ fn decode(
         }
         (
             PassWeights::Maps {
-                dir,
+                maps,
                 threshold,
                 allow_missing,
             },
-            Some(name),
-        ) => {
-            let p = dir.join(name);
-            if allow_missing && !p.exists() {
+            Some(_),
+        ) => match maps.static_weights(input, i) {
+            Ok(Some(w)) => Ok(Some(match threshold {
+                Some(g) => w.thresholded(g),
+                None => w,
+            })),
+            Ok(None) if allow_missing => {
                 missing = true;
                 Ok(None)
-            } else {
-                let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
-                read_static_weights(&p)
-                    .map(|w| match threshold {
-                        Some(g) => Some(w.thresholded(g)),
-                        None => Some(w),
-                    })
-                    .map_err(Error::from)
             }
-        }
+            Ok(None) => Err(maps.missing(input, i)),
+            Err(e) => Err(e),
+        },
     };
     let mask = match masks {
         None => Ok(None),

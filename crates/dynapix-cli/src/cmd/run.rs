@@ -158,6 +158,10 @@ pub struct Args {
     /// Motion-map and first-pass cache (default `SEQ_DIR/dynapix_cache`, or `dynapix/NAME-HASH` under the user cache directory when SEQ_DIR is not writable).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+    /// No cache: compute the first pass and the motion maps in memory, read nothing from a
+    /// cache and write nothing but `--out`.
+    #[arg(long, conflicts_with = "cache")]
+    pub no_cache: bool,
     /// Ignore `SEQ_DIR/prob` and compute the maps into the cache.
     #[arg(long)]
     pub recompute_prob: bool,
@@ -289,7 +293,9 @@ fn write_earlier_passes(
 /// The folders and files a run must not replace: the sequence, the cache, DynaPix+ masks.
 fn kept_paths(input: &Input, runner: &OfflineRunner<'_>) -> Vec<(&'static str, PathBuf)> {
     let mut keep = vec![("the sequence", input.sequence.dir.clone())];
-    keep.push(("the cache", runner.cache_dir()));
+    if let Some(c) = runner.cache_dir() {
+        keep.push(("the cache", c.to_path_buf()));
+    }
     if runner.config().method.needs_masks() {
         keep.push(("the masks", runner.masks_dir()));
     }
@@ -378,7 +384,9 @@ fn execute_into(
             if spec.runs > 1 {
                 std::fs::copy(dir.join("trajectory.txt"), out.join("trajectory.txt"))?;
             }
-            outcome.prob_dir = run.final_maps().map(|m| m.folder.dir.clone());
+            outcome.prob_dir = run
+                .final_maps()
+                .and_then(|m| m.dir().map(Path::to_path_buf));
             outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
             // The run's record replaces the record before the run (the runner's own fields).
             let (runs, seed) = (record["runs"].take(), record["seed"].take());
@@ -613,6 +621,25 @@ fn online_into(
     })
 }
 
+/// The cache folder of a run on `input`: `given`, else none with `no_cache`, else the
+/// default one ([`dynapix::offline::default_cache_dir`]).
+pub fn cache_for(input: &Input, given: Option<PathBuf>, no_cache: bool) -> Option<PathBuf> {
+    if no_cache {
+        return None;
+    }
+    Some(given.unwrap_or_else(|| {
+        let dir = dynapix::offline::default_cache_dir(&input.sequence.dir);
+        if !dir.starts_with(&input.sequence.dir) {
+            tracing::info!(
+                "{} is not writable: caching in {}",
+                input.sequence.dir.display(),
+                dir.display()
+            );
+        }
+        dir
+    }))
+}
+
 /// The configuration of `run`'s flags over the `--config` file.
 pub fn config(args: &Args) -> anyhow::Result<Config> {
     let mut c = args.seq.base_config(args.m.mode)?;
@@ -653,7 +680,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         execute_online(&input, &config, &args.out, bars)?
     } else {
         let options = RunOptions {
-            cache_dir: args.cache.clone(),
+            cache_dir: cache_for(&input, args.cache.clone(), args.no_cache),
             recompute_maps: args.recompute_prob,
             masks_dir: args.masks.clone(),
             allow_missing_maps: args.allow_missing_prob,
