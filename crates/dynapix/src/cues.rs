@@ -29,9 +29,9 @@ use serde_json::{Value, json};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
-use crate::store::{MapFolder, MapSet, MapSink};
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+use crate::store::{MapFolder, MapSet, MapSink};
 
 /// Version of the rigidity computation, part of its cache key.
 pub const RIGIDITY_MAPS_VERSION: u32 = 1;

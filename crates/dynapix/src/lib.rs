@@ -55,6 +55,7 @@
 #![deny(missing_docs)]
 
 pub mod bench;
+pub mod combine;
 pub mod config;
 pub mod cues;
 pub mod error;
@@ -64,11 +65,13 @@ pub mod maps;
 pub mod method;
 pub mod offline;
 pub mod online;
+pub mod pass;
 pub mod poses;
 pub mod profile;
 pub mod progress;
 pub mod slam;
 pub mod store;
+pub mod stream;
 
 pub use bench::{BenchReport, bench_offline, bench_online};
 pub use config::{
@@ -76,6 +79,8 @@ pub use config::{
     PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
 pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
+/// The per-map-point probability update rule of the SLAM weighting (EMA, max, latest).
+pub use dynapix_slam::dynapix::ProbUpdate;
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use maps::{FrameMaps, MapFolder, MapJob, MapSet};
@@ -85,3 +90,4 @@ pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
 pub use poses::{FramePoses, PoseOrigin};
 pub use progress::{NoProgress, Progress, ProgressEvent};
 pub use slam::{PassOutput, PassStats, SlamSession};
+pub use stream::{OnlineRun, run_online};

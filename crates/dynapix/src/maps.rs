@@ -17,11 +17,12 @@ use dynapix_io::MotionProbability;
 use dynapix_io::images::{read_depth, read_depth_raw, read_rgb};
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
-    RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
+    RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams,
 };
 use rayon::prelude::*;
 use serde_json::{Value, json};
 
+use crate::combine::FrameCues;
 use crate::config::{Config, Cues, FlowPreset};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
@@ -29,10 +30,8 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
-pub use crate::store::{
-    MapFolder, MapSet, RECORD_FILE, as_read_back, record_uses_ground_truth,
-};
 use crate::store::MapSink;
+pub use crate::store::{MapFolder, MapSet, RECORD_FILE, as_read_back, record_uses_ground_truth};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
@@ -349,19 +348,26 @@ impl<'a> MapJob<'a> {
             None
         };
         let rig_job = RigidityJob::new(self.input, self.rigidity_params.clone());
-        let others = |i: usize, p: &mut FloatImage| -> std::result::Result<(), BoxError> {
-            if let Some(g) = &geo {
-                noisy_or(p, &g.frame(i)?)?;
-            }
-            if self.cues.rigidity {
-                let r = match &self.rigidity {
-                    Some(set) => set.probability(self.input, i)?.into_image(),
-                    None => rig_job.frame(i)?,
+        let cam = self.input.camera.pinhole();
+        // P of frame `i` from its paper terms (when that cue is on) and the other cues.
+        let combined =
+            |i: usize, paper: Option<FloatImage>| -> std::result::Result<FloatImage, BoxError> {
+                let geometric = match &geo {
+                    Some(g) => Some(g.frame(i)?),
+                    None => None,
                 };
-                noisy_or(p, &r)?;
-            }
-            Ok(())
-        };
+                let rigidity = match (&self.rigidity, self.cues.rigidity) {
+                    (_, false) => None,
+                    (Some(set), true) => Some(set.probability(self.input, i)?.into_image()),
+                    (None, true) => Some(rig_job.frame(i)?),
+                };
+                let cues = FrameCues {
+                    paper,
+                    geometric,
+                    rigidity,
+                };
+                Ok(cues.combine(cam.width, cam.height)?)
+            };
         if self.cues.paper {
             let loader = SequenceLoader::new(self.input, self.use_depth_bg);
             let flow = self.flow_provider();
@@ -377,8 +383,7 @@ impl<'a> MapJob<'a> {
             let mut stats = seq.run(
                 frames,
                 |m| {
-                    let mut p = m.maps.p.clone();
-                    others(m.index, &mut p)?;
+                    let p = combined(m.index, Some(m.maps.p.clone()))?;
                     map(FrameMaps {
                         index: m.index,
                         p,
@@ -392,7 +397,6 @@ impl<'a> MapJob<'a> {
             }
             return Ok(stats);
         }
-        let cam = self.input.camera.pinhole();
         // Frames in parallel chunks, in order; every chunk ends with all threads waiting for
         // its slowest frame, so chunks are long (32 frames on 2 threads: 8 made the threads
         // wait measurably). What a frame gets does not depend on the chunking.
@@ -401,9 +405,8 @@ impl<'a> MapJob<'a> {
             let out = part
                 .par_iter()
                 .map(|&i| {
-                    let mut p = FloatImage::new(cam.width, cam.height);
-                    others(i, &mut p)
-                        .and_then(|()| {
+                    combined(i, None)
+                        .and_then(|p| {
                             map(FrameMaps {
                                 index: i,
                                 p,

@@ -310,7 +310,9 @@ impl<'a> OfflineRunner<'a> {
         }
         let doc = self.first_pass_record();
         let key = Fnv64::of(doc.to_string().as_bytes());
-        let dir = self.cache_dir().map(|c| c.join(format!("first-pass-{key}")));
+        let dir = self
+            .cache_dir()
+            .map(|c| c.join(format!("first-pass-{key}")));
         if let Some(dir) = &dir
             && let Some(trajectory) = read_cached_first_pass(dir, &doc)
         {

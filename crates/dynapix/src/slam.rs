@@ -12,17 +12,16 @@ use std::time::Instant;
 
 use dynapix_io::images::read_mask;
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
-use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FeatureStage, Features, FrameInput, FrameResult, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
 use image::{GrayImage, RgbImage};
-use serde::Serialize;
 
 use crate::config::VocabularyChoice;
 use crate::error::{BadFrame, Error, Result, StoppedPass};
 use crate::input::{Camera, Input};
+pub use crate::pass::{FrameTiming, PassOutput, PassStats};
 use crate::progress::{Progress, Task};
 use crate::store::MapSet;
 
@@ -56,75 +55,6 @@ pub fn load_vocabulary(choice: &VocabularyChoice) -> Result<Option<Vocabulary>> 
                 })
         }
     }
-}
-
-/// Step times of one frame, in milliseconds.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct FrameTiming {
-    /// Frame index.
-    pub index: u64,
-    /// Frame time (s).
-    pub timestamp: f64,
-    /// Feature extraction.
-    pub extract_ms: f64,
-    /// Tracking without extraction.
-    pub track_ms: f64,
-    /// Local mapping.
-    pub mapping_ms: f64,
-    /// Loop closing.
-    pub loop_ms: f64,
-    /// A keyframe was created.
-    pub keyframe: bool,
-    /// State after the frame.
-    #[serde(serialize_with = "status_word")]
-    pub status: FrameStatus,
-}
-
-fn status_word<S: serde::Serializer>(
-    s: &FrameStatus,
-    ser: S,
-) -> std::result::Result<S::Ok, S::Error> {
-    ser.serialize_str(s.as_str())
-}
-
-/// Counters of a pass.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
-pub struct PassStats {
-    /// Frames processed.
-    pub frames: usize,
-    /// Frames tracked.
-    pub tracked: usize,
-    /// Keyframes in the final map.
-    pub keyframes: usize,
-    /// Map points in the final map.
-    pub map_points: usize,
-    /// Loops closed.
-    pub loops_closed: usize,
-    /// Wall-clock seconds of the pass.
-    pub seconds: f64,
-    /// Frames that ran unweighted because their probability map was missing.
-    pub frames_without_prob_map: usize,
-    /// Frames skipped because their files cannot be used (recorded lost).
-    pub frames_skipped: usize,
-}
-
-/// What a pass leaves.
-#[derive(Clone, Debug)]
-pub struct PassOutput {
-    /// Tracked frames with their current (BA-refined) camera-to-world pose.
-    pub trajectory: Trajectory,
-    /// Per frame: tracked / lost / not initialised.
-    pub status: Vec<StampedStatus>,
-    /// Keyframes in the final map, by creation.
-    pub keyframes: Trajectory,
-    /// Loops closed, in order.
-    pub loops: Vec<LoopEvent>,
-    /// Per-frame step times.
-    pub timings: Vec<FrameTiming>,
-    /// Counters.
-    pub stats: PassStats,
-    /// Frames skipped because their files cannot be used, in order.
-    pub skipped: Vec<BadFrame>,
 }
 
 /// A SLAM system being fed frames, with the bookkeeping of a pass.
