@@ -52,6 +52,17 @@ pub enum Error {
         /// What went wrong.
         source: dynapix_slam::vocab::VocabError,
     },
+    /// Reading a saved SLAM map.
+    #[error(transparent)]
+    Persist(#[from] dynapix_slam::persist::PersistError),
+    /// A saved SLAM map that cannot be decoded, used or written.
+    #[error("{context}: {source}")]
+    Map {
+        /// What was being done, naming the file.
+        context: String,
+        /// What went wrong.
+        source: dynapix_slam::persist::PersistError,
+    },
     /// A frame whose files cannot be used (see [`BadFrame`]).
     #[error("{0}")]
     Frame(BadFrame),

@@ -7,9 +7,13 @@
 //!   defaults, loadable from JSON or YAML.
 //! - [`cues`]: the cues beyond the paper's terms on a sequence (pose-free rigidity maps, cached
 //!   once per sequence; the geometric cue's inputs).
-//! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process,
-//!   with a motion-map cache keyed by everything that determines the maps and a provenance
-//!   record of every input.
+//! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process
+//!   and in memory (the maps in their stored 16-bit form, [`store`]), with an optional cache
+//!   keyed by everything that determines the maps (written as a side effect, reused when the
+//!   key matches; without one nothing is written) and a provenance record of every input.
+//! - [`combine`]: the one place where a frame's cues become P (offline and online).
+//! - [`run_online`]: the one online driver of a sequence folder (frames read ahead, DynaPix+
+//!   masks, bad frames, statistics), used by `dynapix run --online` and `dynapix bench`.
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
 //! - [`bench`](mod@bench) and [`profile`]: one measured run, stage by stage (`dynapix bench`).

@@ -169,6 +169,72 @@ impl SlamSession {
         Ok(res)
     }
 
+    /// Loads the saved map `path` (`dynapix_slam::persist`), checks it against this
+    /// session's camera (with `depth_factor`), ORB pyramid and vocabulary, and switches the
+    /// system to localisation mode on it (only tracking against the map). Errors name the
+    /// file.
+    pub fn load_map(&mut self, path: &Path, depth_factor: f64) -> Result<MapLoad> {
+        use dynapix_slam::persist::{PersistError, decode};
+        let t0 = Instant::now();
+        let bytes = std::fs::read(path).map_err(|source| PersistError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let t1 = Instant::now();
+        let saved = decode(&bytes).map_err(|source| Error::Map {
+            context: format!("cannot load map {}", path.display()),
+            source,
+        })?;
+        let system = &mut self.system;
+        let pyramid = system.map().pyramid.clone();
+        saved
+            .check_compatible(system.camera(), depth_factor, &pyramid, system.vocabulary())
+            .map_err(|source| Error::Map {
+                context: format!("cannot use map {} for this run", path.display()),
+                source,
+            })?;
+        let t2 = Instant::now();
+        let (keyframes, points) = (saved.num_keyframes(), saved.num_points());
+        let params = system.map().params.clone();
+        system.enter_localization(saved.into_map(params));
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        Ok(MapLoad {
+            keyframes,
+            points,
+            bytes: bytes.len(),
+            read_ms: ms(t0, t1),
+            check_ms: ms(t1, t2),
+            rebuild_ms: t2.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Encodes the system's map (`dynapix_slam::persist`, with `depth_factor`) and writes it
+    /// atomically to `path`.
+    pub fn save_map(&self, path: &Path, depth_factor: f64) -> Result<MapSave> {
+        let context = || format!("cannot save map {}", path.display());
+        let system = &self.system;
+        let t0 = Instant::now();
+        let bytes = dynapix_slam::persist::encode(
+            system.map(),
+            system.camera(),
+            depth_factor,
+            system.vocabulary(),
+        )
+        .map_err(|source| Error::Map {
+            context: context(),
+            source,
+        })?;
+        let t1 = Instant::now();
+        dynapix_io::write_atomic(path, &bytes).map_err(|e| Error::file(path, e.to_string()))?;
+        Ok(MapSave {
+            keyframes: system.map().num_keyframes(),
+            points: system.map().num_points(),
+            bytes: bytes.len(),
+            encode_ms: (t1 - t0).as_secs_f64() * 1e3,
+            write_ms: t1.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
     /// Ends the sequence (the system's final refinement, if its parameters ask for one).
     pub fn finish(&mut self) {
         if let Some(g) = self.system.finish() {
@@ -235,6 +301,38 @@ impl SlamSession {
             skipped: self.skipped.clone(),
         }
     }
+}
+
+/// A saved map loaded by [`SlamSession::load_map`]: its size and where the time went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapLoad {
+    /// Keyframes in the map.
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub points: usize,
+    /// Size of the file.
+    pub bytes: usize,
+    /// Milliseconds reading the file.
+    pub read_ms: f64,
+    /// Milliseconds decoding and checking it.
+    pub check_ms: f64,
+    /// Milliseconds rebuilding the live map.
+    pub rebuild_ms: f64,
+}
+
+/// A map saved by [`SlamSession::save_map`]: its size and where the time went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapSave {
+    /// Keyframes in the map.
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub points: usize,
+    /// Size of the file.
+    pub bytes: usize,
+    /// Milliseconds encoding the map.
+    pub encode_ms: f64,
+    /// Milliseconds writing the file.
+    pub write_ms: f64,
 }
 
 /// The weights of a pass.
