@@ -16,6 +16,10 @@
 //! - **Weighted passes**: `passes.weighted` of them (paper mode 2, reference mode 1 = the
 //!   paper's schedule); P of each combines the enabled cues ([`crate::Cues`]) by noisy-or.
 //!
+//! Everything is passed in memory: the maps of a pass are kept in their stored 16-bit form
+//! ([`crate::store`]), so a run with a fresh cache, a run from the cache and a run without a
+//! cache ([`RunOptions::cache_dir`] `None`: nothing is written) track with the same weights.
+//!
 //! Nothing here parses command lines or prints; progress goes to a [`Progress`] callback and
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
 //! write.
