@@ -395,9 +395,9 @@ pub fn run(
             passes: out.passes.iter().map(|p| json!(p.stats)).collect(),
             first_pass: out.first_pass.as_ref().map(|f| f.trajectory.clone()),
             record,
-            maps_dir: maps.map(|m| m.folder.dir.clone()),
+            maps_dir: maps.and_then(|m| m.folder.as_ref().map(|f| f.dir.clone())),
             map_paths: (0..input.len())
-                .map(|i| maps.and_then(|m| m.folder.map_path(&input, i)))
+                .map(|i| maps.and_then(|m| m.folder.as_ref()?.map_path(&input, i)))
                 .collect(),
             frame_stamps: input.timestamps(),
             groundtruth: Some(input.sequence.dir.join("groundtruth.txt")).filter(|p| p.is_file()),

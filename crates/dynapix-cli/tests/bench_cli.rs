@@ -118,14 +118,12 @@ fn bench_reports_each_stage_of_the_method_that_ran() {
 
     let (dp, _) = bench(&seq, &tmp.path().join("dp.json"), &["--method", "dynapix"]);
     let stages = names(&dp, "stages");
-    for s in [
-        "rigidity: flow",
-        "rigidity: fit",
-        "geometric: static depth",
-        "write maps",
-        "read maps",
-    ] {
+    for s in ["rigidity: flow", "rigidity: fit", "geometric: static depth"] {
         assert!(stages.contains(&s.to_string()), "{s} missing: {stages:?}");
+    }
+    // A cold bench keeps its maps in memory: nothing written, nothing read back.
+    for s in ["write maps", "read maps"] {
+        assert!(!stages.contains(&s.to_string()), "{s} ran: {stages:?}");
     }
     // The paper's terms are off by default: no paper stage ran.
     assert!(!stages.iter().any(|s| s.starts_with("paper")), "{stages:?}");
@@ -145,4 +143,45 @@ fn bench_reports_each_stage_of_the_method_that_ran() {
     assert_eq!(on["schedule"], "online");
     assert!(on["latency"]["p95_ms"].as_f64().unwrap() > 0.0, "{on}");
     assert!(text.contains("latency per frame"), "{text}");
+}
+
+#[test]
+fn online_bench_of_dynapix_plus_uses_the_masks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 12);
+    let json = tmp.path().join("b.json");
+    let args = ["--method", "dynapix+", "--online"];
+    // Without `mask/` the bench refuses to run (it ran unmasked before).
+    let o = Command::new(bin())
+        .arg("bench")
+        .arg(&seq)
+        .args(args)
+        .arg("-q")
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("mask"));
+    // Every pixel dynamic: no map point is born, no frame tracked.
+    let masks = seq.join("mask");
+    std::fs::create_dir_all(&masks).unwrap();
+    for e in std::fs::read_dir(seq.join("rgb")).unwrap() {
+        let p = e.unwrap().path();
+        let (w, h) = image::image_dimensions(&p).unwrap();
+        let name = p.with_extension("png");
+        image::GrayImage::from_pixel(w, h, image::Luma([255]))
+            .save(masks.join(name.file_name().unwrap()))
+            .unwrap();
+    }
+    let (all, _) = bench(&seq, &json, &args);
+    for e in std::fs::read_dir(&masks).unwrap() {
+        let p = e.unwrap().path();
+        let (w, h) = image::image_dimensions(&p).unwrap();
+        image::GrayImage::new(w, h).save(&p).unwrap();
+    }
+    let (none, _) = bench(&seq, &json, &args);
+    let (t_all, t_none) = (
+        all["tracked"].as_u64().unwrap(),
+        none["tracked"].as_u64().unwrap(),
+    );
+    assert!(t_all < t_none, "all dynamic {t_all}, none dynamic {t_none}");
 }

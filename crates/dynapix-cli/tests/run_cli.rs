@@ -367,3 +367,58 @@ fn nothing_tracked_is_not_a_silent_success() {
     assert!(out.join("status.txt").is_file());
     assert!(run(&["--allow-untracked"]).status.success());
 }
+
+/// A folder of DynaPix+ masks named like the rgb images of `seq`, every pixel `value`.
+fn constant_masks(seq: &Path, dir: &Path, value: u8) {
+    std::fs::create_dir_all(dir).unwrap();
+    for e in std::fs::read_dir(seq.join("mask")).unwrap() {
+        let p = e.unwrap().path();
+        let (w, h) = image::image_dimensions(&p).unwrap();
+        image::GrayImage::from_pixel(w, h, image::Luma([value]))
+            .save(dir.join(p.file_name().unwrap()))
+            .unwrap();
+    }
+}
+
+#[test]
+fn online_dynapix_plus_uses_the_masks_it_is_given() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), 20);
+    let run = |masks: &Path, out: &str, extra: &[&str]| {
+        Command::new(bin())
+            .arg("run")
+            .arg(&seq)
+            .args([
+                "--method",
+                "dynapix+",
+                "--online",
+                "--allow-untracked",
+                "--quiet",
+            ])
+            .args(extra)
+            .arg("--masks")
+            .arg(masks)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .output()
+            .unwrap()
+    };
+    // A mask folder that does not exist is refused, naming it (it was ignored online).
+    let o = run(&tmp.path().join("nope"), "o0", &[]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("nope"));
+    // Everything dynamic: no map point is born, nothing is tracked; nothing dynamic: the
+    // frames are tracked. Both read the masks given, not the sequence's `mask/`.
+    let (all, none) = (tmp.path().join("all"), tmp.path().join("none"));
+    constant_masks(&seq, &all, 255);
+    constant_masks(&seq, &none, 0);
+    assert!(run(&all, "o_all", &[]).status.success());
+    assert!(run(&none, "o_none", &[]).status.success());
+    let tracked = |out: &str| run_json(&tmp.path().join(out))["results"][0]["tracked"].as_u64();
+    let (t_all, t_none) = (tracked("o_all").unwrap(), tracked("o_none").unwrap());
+    assert!(t_all < t_none, "all dynamic {t_all}, none {t_none}");
+    assert_eq!(
+        run_json(&tmp.path().join("o_all"))["masks"],
+        serde_json::json!(all)
+    );
+}

@@ -9,9 +9,9 @@
 //! with the library's sequence reader (`camera.yaml` or a TUM folder name gives the camera).
 
 use std::process::ExitCode;
-use std::time::Instant;
 
-use dynapix::{CameraChoice, Config, FrameResult, Input, OnlineDynaPix, RgbdFrame};
+use dynapix::stream::run_online;
+use dynapix::{CameraChoice, Config, FrameResult, Input, NoProgress};
 
 fn usage() -> ExitCode {
     eprintln!("usage: online_rgbd SEQ_DIR [--lookahead K] [--config FILE]");
@@ -31,33 +31,20 @@ fn print(r: &FrameResult) {
 
 fn run(dir: &str, config: &Config) -> dynapix::Result<()> {
     let input = Input::open(dir, &config.sequence, &CameraChoice::Sequence)?;
-    let mut online = OnlineDynaPix::new(&input.camera, config)?;
-    let started = Instant::now();
-    let (mut tracked, mut motion_ms, mut slam_ms) = (0usize, 0.0, 0.0);
-    let mut count = |r: &FrameResult| {
-        print(r);
-        tracked += usize::from(r.pose_wc.is_some());
-        motion_ms += r.motion_ms;
-        slam_ms += r.slam_ms;
-    };
-    for i in 0..input.len() {
-        let (rgb, depth) = input.load_rgbd(i)?;
-        let t = input.sequence.frames[i].t;
-        if let Some(r) = online.push(RgbdFrame::new(t, rgb, depth))? {
-            count(&r);
-        }
-    }
-    for r in online.finish()? {
-        count(&r);
-    }
+    // The library's online driver: frames read ahead on a reader thread, DynaPix+ masks from
+    // the folder's `mask/`, each result printed as soon as it is known.
+    let (run, result) = run_online(&input, config, None, &NoProgress, &mut print);
+    result?;
     let n = input.len().max(1) as f64;
+    let sum = |f: fn(&FrameResult) -> f64| run.results.iter().map(f).sum::<f64>();
     eprintln!(
-        "{} frames, {tracked} tracked, lookahead {} frames; per frame: motion {:.1} ms, SLAM {:.1} ms; {:.1} s wall (with image decoding)",
+        "{} frames, {} tracked, lookahead {} frames; per frame: motion {:.1} ms, SLAM {:.1} ms; {:.1} s wall (with image decoding)",
         input.len(),
-        online.lookahead(),
-        motion_ms / n,
-        slam_ms / n,
-        started.elapsed().as_secs_f64()
+        run.tracked(),
+        run.lookahead,
+        sum(|r| r.motion_ms) / n,
+        sum(|r| r.slam_ms) / n,
+        run.wall_seconds
     );
     Ok(())
 }

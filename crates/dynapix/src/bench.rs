@@ -2,8 +2,8 @@
 //! per second, peak memory and where the time went, stage by stage ([`crate::profile`]).
 //!
 //! An offline bench computes everything (first pass, rigidity maps, motion maps, every pass)
-//! in a fresh temporary cache, so nothing is reused from an earlier run; an online bench
-//! pushes the frames through [`OnlineDynaPix`] one by one and also reports per-frame latency.
+//! in memory without a cache, so nothing is reused from an earlier run; an online bench
+//! pushes the frames through [`crate::OnlineDynaPix`] one by one and also reports per-frame latency.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -14,9 +14,9 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::input::Input;
 use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
-use crate::online::{OnlineDynaPix, RgbdFrame};
 use crate::profile::{Profile, StageProfiler, process_usage};
-use crate::progress::{Progress, Task};
+use crate::progress::Progress;
+use crate::stream::{online_masks, run_online};
 
 /// Per-frame latency of an online bench: milliseconds spent in each `push` (the processing of
 /// the frame it releases: the pushed one, or with a lookahead the one pushed K frames before).
@@ -149,28 +149,6 @@ impl BenchReport {
     }
 }
 
-/// A fresh cache folder for one bench, removed when dropped.
-struct TempCache(PathBuf);
-
-impl TempCache {
-    fn new() -> Result<Self> {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0);
-        let dir =
-            std::env::temp_dir().join(format!("dynapix-bench-{}-{nanos}", std::process::id()));
-        std::fs::create_dir_all(&dir).map_err(|e| dynapix_io::IoError::io(&dir, e))?;
-        Ok(Self(dir))
-    }
-}
-
-impl Drop for TempCache {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 struct Clock {
     wall: Instant,
     cpu: Option<f64>,
@@ -222,7 +200,8 @@ impl Clock {
     }
 }
 
-/// Runs `config` offline on `input` from scratch (a fresh temporary cache) and measures it.
+/// Runs `config` offline on `input` from scratch (no cache: nothing is read from or written
+/// to disk but the sequence's frames) and measures it.
 /// Returns the report and the run's output (for scoring).
 pub fn bench_offline(
     config: &Config,
@@ -230,12 +209,12 @@ pub fn bench_offline(
     profiler: &StageProfiler,
     progress: &dyn Progress,
 ) -> Result<(BenchReport, OfflineOutput)> {
-    let cache = TempCache::new()?;
+    // No cache: everything is computed and kept in memory, nothing is written or read back.
     let runner = OfflineRunner::new(
         config,
         input,
         RunOptions {
-            cache_dir: Some(cache.0.clone()),
+            cache_dir: None,
             recompute_maps: true,
             ..RunOptions::default()
         },
@@ -251,79 +230,40 @@ pub fn bench_offline(
     Ok((report, out?))
 }
 
-/// Frames decoded ahead of the online system (on a reader thread) by [`bench_online`].
-const FRAMES_AHEAD: usize = 2;
-
-/// Pushes every frame of `input` through [`OnlineDynaPix`] with `config` (decoding included,
-/// on a reader thread that stays up to two frames ahead) and measures it. Returns the report and the camera-to-world pose of every tracked frame.
+/// Pushes every frame of `input` through [`OnlineDynaPix`](crate::OnlineDynaPix) with
+/// `config` ([`run_online`]: decoding included, on a reader thread that stays up to two
+/// frames ahead; DynaPix+ with the sequence's `mask/`) and measures it. Returns the report
+/// and the camera-to-world pose of every tracked frame.
 pub fn bench_online(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
     progress: &dyn Progress,
 ) -> Result<(BenchReport, dynapix_io::Trajectory)> {
-    let mut online = OnlineDynaPix::new(&input.camera, config)?;
+    // Checked before the clock starts, like the offline runner checks its inputs.
+    online_masks(input, config, None)?;
     let clock = Clock::start(profiler);
-    let label = format!("{} online", config.method);
-    let task = Task::begin(progress, &label, input.len());
-    let mut feed = || -> Result<(Vec<f64>, Vec<crate::online::FrameResult>)> {
-        let mut latency = Vec::with_capacity(input.len());
-        let mut results = Vec::with_capacity(input.len());
-        // Frames are decoded on a reader thread, as a camera driver delivers them; a frame
-        // already delivered is shown to the push before it (`push_before`).
-        input.stream_with_next(
-            FRAMES_AHEAD,
-            |i| {
-                input
-                    .load_rgbd(i)
-                    .map(|(rgb, depth)| RgbdFrame::new(input.sequence.frames[i].t, rgb, depth))
-            },
-            |_, frame, next| -> Result<()> {
-                let frame = frame?;
-                let started = Instant::now();
-                let r = online.push_before(frame, next.and_then(|n| n.as_ref().ok()))?;
-                latency.push(started.elapsed().as_secs_f64() * 1e3);
-                results.extend(r);
-                task.step("");
-                Ok(())
-            },
-        )?;
-        results.extend(online.finish()?);
-        Ok((latency, results))
-    };
-    let fed = feed();
-    drop(task);
-    let (latency, results) = match fed {
-        Ok(x) => x,
-        Err(e) => {
-            profiler.stop();
-            return Err(e);
-        }
-    };
-    let tracked = results
-        .iter()
-        .filter(|r| r.status == dynapix_io::FrameStatus::Tracked)
-        .count();
+    let (run, fed) = run_online(input, config, None, progress, &mut |_| {});
+    if let Err(e) = fed {
+        profiler.stop();
+        return Err(e);
+    }
     let report = clock.report(
         profiler,
         input,
         config,
         "online",
-        tracked,
-        Latency::of(&latency),
+        run.tracked(),
+        Latency::of(&run.push_ms),
     );
-    let poses = results
-        .iter()
-        .filter_map(|r| r.pose_wc.map(|p| dynapix_io::StampedPose::new(r.t, p)))
-        .collect();
-    if results.len() != input.len() {
+    if run.results.len() + run.skipped.len() != input.len() {
         return Err(Error::Input(format!(
             "online bench: {} results for {} frames",
-            results.len(),
+            run.results.len(),
             input.len()
         )));
     }
-    Ok((report, dynapix_io::Trajectory::new(poses)))
+    Ok((report, run.reported()))
 }
 
 #[cfg(test)]

@@ -29,9 +29,9 @@ use serde_json::{Value, json};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
-use crate::maps::{MapFolder, MapSet};
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+use crate::store::{MapFolder, MapSet, MapSink};
 
 /// Version of the rigidity computation, part of its cache key.
 pub const RIGIDITY_MAPS_VERSION: u32 = 1;
@@ -333,26 +333,74 @@ fn rigid_frame(g: &GrayDepth, offset: i64) -> RigidFrame<'_> {
     }
 }
 
-/// The rigidity maps of `job` in the cache folder `root`: a folder `rigidity-<key>` is
-/// reused when its record matches the job exactly and every map exists, else computed.
+/// The rigidity maps of `job`, with the cache folder `root` when given: a folder
+/// `rigidity-<key>` is reused when its record matches the job exactly and every map exists,
+/// else the maps are computed, kept in memory and written there as they come. Without a
+/// cache nothing is written.
 pub fn cached_rigidity(
     job: &RigidityJob<'_>,
-    root: &Path,
+    root: Option<&Path>,
     label: &str,
     progress: &dyn Progress,
 ) -> Result<MapSet> {
     let config = job.record();
-    let (folder, key, reused) = MapFolder::in_cache(root, "rigidity", job.input, &config);
-    if !reused {
-        let _phase = tracing::info_span!(target: "dynapix::phase", "rigidity maps").entered();
-        folder.write_record(job.input, &config, "running", Value::Null)?;
-        let started = std::time::Instant::now();
-        let stats = job.run(progress, label, |i, p| {
-            folder.write_map(job.input, i, &MotionProbability::new(p))
-        })?;
-        folder.write_record(
-            job.input,
+    let cache = root.map(|r| MapFolder::in_cache(r, "rigidity", job.input, &config));
+    let reused = cache.as_ref().is_some_and(|c| c.2);
+    let memory = if reused {
+        None
+    } else {
+        Some(compute_rigidity(
+            job,
+            cache.as_ref().map(|c| &c.0),
             &config,
+            label,
+            progress,
+        )?)
+    };
+    let source = match (&cache, reused) {
+        (None, _) => "computed (no cache)",
+        (Some(_), true) => "cache (key matched)",
+        (Some(_), false) => "computed",
+    };
+    let (folder, key) = match cache {
+        Some((f, k, _)) => (Some(f), Some(k)),
+        None => (None, None),
+    };
+    Ok(MapSet {
+        record: json!({
+            "source": source,
+            "dir": folder.as_ref().map(|f| &f.dir),
+            "key": key,
+            "config": config,
+        }),
+        folder,
+        memory,
+        ground_truth: Some(false),
+    })
+}
+
+/// Computes the rigidity maps of `job` into memory, and into `folder` when given (recorded
+/// complete at the end).
+fn compute_rigidity(
+    job: &RigidityJob<'_>,
+    folder: Option<&MapFolder>,
+    config: &Value,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<crate::store::MemoryMaps> {
+    let _phase = tracing::info_span!(target: "dynapix::phase", "rigidity maps").entered();
+    if let Some(f) = folder {
+        f.write_record(job.input, config, "running", Value::Null)?;
+    }
+    let started = std::time::Instant::now();
+    let sink = MapSink::new(job.input, folder);
+    let stats = job.run(progress, label, |i, p| {
+        sink.put(i, &MotionProbability::new(p))
+    })?;
+    if let Some(f) = folder {
+        f.write_record(
+            job.input,
+            config,
             "complete",
             json!({
                 "frames_computed": job.input.len() - job.input.bad_frames().len(),
@@ -362,16 +410,7 @@ pub fn cached_rigidity(
             }),
         )?;
     }
-    Ok(MapSet {
-        record: json!({
-            "source": if reused { "cache (key matched)" } else { "computed" },
-            "dir": folder.dir,
-            "key": key,
-            "config": config,
-        }),
-        folder,
-        ground_truth: Some(false),
-    })
+    Ok(sink.finish())
 }
 
 /// The inputs of the geometric cue for a whole sequence: every frame's depth at the working

@@ -2,34 +2,7 @@
 
 use std::path::PathBuf;
 
-use serde::Serialize;
-
-/// A frame of a sequence whose files cannot be used: a missing, truncated or undecodable rgb
-/// or depth image, rgb and depth of different sizes, or a size other than the camera's.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct BadFrame {
-    /// Index of the frame in the sequence (0-based).
-    pub index: usize,
-    /// Frame time (s).
-    pub timestamp: f64,
-    /// The file at fault.
-    pub file: PathBuf,
-    /// What is wrong with it.
-    pub reason: String,
-}
-
-impl std::fmt::Display for BadFrame {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "frame {} (t = {:.6}): {}: {}",
-            self.index,
-            self.timestamp,
-            self.file.display(),
-            self.reason
-        )
-    }
-}
+pub use crate::pass::BadFrame;
 
 /// A SLAM pass that stopped part-way, with what it had computed.
 #[derive(Debug)]
@@ -39,7 +12,7 @@ pub struct StoppedPass {
     /// Why it stopped.
     pub error: Error,
     /// The pass up to the frame before the one that stopped it.
-    pub partial: crate::slam::PassOutput,
+    pub partial: crate::pass::PassOutput,
 }
 
 /// Everything that can go wrong in a DynaPix run.
@@ -78,6 +51,17 @@ pub enum Error {
         path: PathBuf,
         /// What went wrong.
         source: dynapix_slam::vocab::VocabError,
+    },
+    /// Reading a saved SLAM map.
+    #[error(transparent)]
+    Persist(#[from] dynapix_slam::persist::PersistError),
+    /// A saved SLAM map that cannot be decoded, used or written.
+    #[error("{context}: {source}")]
+    Map {
+        /// What was being done, naming the file.
+        context: String,
+        /// What went wrong.
+        source: dynapix_slam::persist::PersistError,
     },
     /// A frame whose files cannot be used (see [`BadFrame`]).
     #[error("{0}")]
@@ -118,7 +102,7 @@ impl Error {
     }
 
     /// What a SLAM pass had computed when it stopped (see [`Error::Stopped`]).
-    pub fn partial_pass(&self) -> Option<&crate::slam::PassOutput> {
+    pub fn partial_pass(&self) -> Option<&crate::pass::PassOutput> {
         match self {
             Error::Stopped(s) => Some(&s.partial),
             _ => None,

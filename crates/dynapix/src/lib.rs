@@ -7,9 +7,13 @@
 //!   defaults, loadable from JSON or YAML.
 //! - [`cues`]: the cues beyond the paper's terms on a sequence (pose-free rigidity maps, cached
 //!   once per sequence; the geometric cue's inputs).
-//! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process,
-//!   with a motion-map cache keyed by everything that determines the maps and a provenance
-//!   record of every input.
+//! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process
+//!   and in memory (the maps in their stored 16-bit form, [`store`]), with an optional cache
+//!   keyed by everything that determines the maps (written as a side effect, reused when the
+//!   key matches; without one nothing is written) and a provenance record of every input.
+//! - [`combine`]: the one place where a frame's cues become P (offline and online).
+//! - [`run_online`]: the one online driver of a sequence folder (frames read ahead, DynaPix+
+//!   masks, bad frames, statistics), used by `dynapix run --online` and `dynapix bench`.
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
 //! - [`bench`](mod@bench) and [`profile`]: one measured run, stage by stage (`dynapix bench`).
@@ -55,6 +59,7 @@
 #![deny(missing_docs)]
 
 pub mod bench;
+pub mod combine;
 pub mod config;
 pub mod cues;
 pub mod error;
@@ -65,10 +70,13 @@ pub mod maps;
 pub mod method;
 pub mod offline;
 pub mod online;
+pub mod pass;
 pub mod poses;
 pub mod profile;
 pub mod progress;
 pub mod slam;
+pub mod store;
+pub mod stream;
 pub mod synthetic;
 
 pub use bench::{BenchReport, bench_offline, bench_online};
@@ -77,6 +85,8 @@ pub use config::{
     PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
 pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
+/// The per-map-point probability update rule of the SLAM weighting (EMA, max, latest).
+pub use dynapix_slam::weighting::ProbUpdate;
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use maps::{CacheCheck, FrameMaps, MapFolder, MapJob, MapSet};
@@ -86,3 +96,4 @@ pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
 pub use poses::{FramePoses, PoseOrigin};
 pub use progress::{NoProgress, Progress, ProgressEvent};
 pub use slam::{PassOutput, PassStats, SlamSession};
+pub use stream::{OnlineRun, run_online};

@@ -15,19 +15,19 @@
 //! a truncated, missing or swapped map makes the whole folder be recomputed, with a warning
 //! naming the file, instead of stopping a run half-way.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use dynapix_flow::dis::DisFlow;
 use dynapix_io::MotionProbability;
 use dynapix_io::images::{read_depth_raw, read_rgb};
-use dynapix_io::weights::write_motion_probability;
 use dynapix_motion::{
     Backgrounds, BoxError, FloatImage, FrameLoader, FrameMotion, MotionParams, RgbdImages,
-    RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams, noisy_or,
+    RigidityParams, SequenceMotion, SequenceStats, StaticBackground, StaticDepthParams,
 };
 use rayon::prelude::*;
 use serde_json::{Value, json};
 
+use crate::combine::FrameCues;
 use crate::config::{Config, Cues, FlowPreset};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
@@ -35,14 +35,16 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+use crate::store::MapSink;
+pub use crate::store::{
+    CacheCheck, MapFolder, MapSet, RECORD_FILE, as_read_back, file_fingerprint,
+    record_uses_ground_truth,
+};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
 /// through the lens distortion of distorted cameras; 3: cues combined by noisy-or).
 pub const MOTION_MAPS_VERSION: u32 = 3;
-
-/// The record file of a map folder.
-pub const RECORD_FILE: &str = "motion.json";
 
 /// The frames of an [`Input`] as a motion-map frame loader.
 pub struct SequenceLoader<'a> {
@@ -355,27 +357,26 @@ impl<'a> MapJob<'a> {
             None
         };
         let rig_job = RigidityJob::new(self.input, self.rigidity_params.clone());
-        let others = |i: usize, p: &mut FloatImage| -> std::result::Result<(), BoxError> {
-            if let Some(g) = &geo {
-                noisy_or(p, &g.frame(i)?)?;
-            }
-            if self.cues.rigidity {
-                let r = match &self.rigidity {
-                    Some(set) => {
-                        let path = set
-                            .folder
-                            .map_path(self.input, i)
-                            .ok_or("frame without a file name")?;
-                        let _stage =
-                            tracing::info_span!(target: "dynapix::stage", "read maps").entered();
-                        dynapix_io::weights::read_motion_probability(path)?.into_image()
-                    }
-                    None => rig_job.frame(i)?,
+        let cam = self.input.camera.pinhole();
+        // P of frame `i` from its paper terms (when that cue is on) and the other cues.
+        let combined =
+            |i: usize, paper: Option<FloatImage>| -> std::result::Result<FloatImage, BoxError> {
+                let geometric = match &geo {
+                    Some(g) => Some(g.frame(i)?),
+                    None => None,
                 };
-                noisy_or(p, &r)?;
-            }
-            Ok(())
-        };
+                let rigidity = match (&self.rigidity, self.cues.rigidity) {
+                    (_, false) => None,
+                    (Some(set), true) => Some(set.probability(self.input, i)?.into_image()),
+                    (None, true) => Some(rig_job.frame(i)?),
+                };
+                let cues = FrameCues {
+                    paper,
+                    geometric,
+                    rigidity,
+                };
+                Ok(cues.combine(cam.width, cam.height)?)
+            };
         if self.cues.paper {
             let loader = SequenceLoader::new(self.input, self.use_depth_bg);
             let flow = self.flow_provider();
@@ -391,8 +392,7 @@ impl<'a> MapJob<'a> {
             let mut stats = seq.run(
                 frames,
                 |m| {
-                    let mut p = m.maps.p.clone();
-                    others(m.index, &mut p)?;
+                    let p = combined(m.index, Some(m.maps.p.clone()))?;
                     map(FrameMaps {
                         index: m.index,
                         p,
@@ -406,7 +406,6 @@ impl<'a> MapJob<'a> {
             }
             return Ok(stats);
         }
-        let cam = self.input.camera.pinhole();
         // Frames in parallel chunks, in order; every chunk ends with all threads waiting for
         // its slowest frame, so chunks are long (32 frames on 2 threads: 8 made the threads
         // wait measurably). What a frame gets does not depend on the chunking.
@@ -415,9 +414,8 @@ impl<'a> MapJob<'a> {
             let out = part
                 .par_iter()
                 .map(|&i| {
-                    let mut p = FloatImage::new(cam.width, cam.height);
-                    others(i, &mut p)
-                        .and_then(|()| {
+                    combined(i, None)
+                        .and_then(|p| {
                             map(FrameMaps {
                                 index: i,
                                 p,
@@ -444,269 +442,39 @@ impl<'a> MapJob<'a> {
     }
 }
 
-/// A folder of motion maps with its `motion.json`.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct MapFolder {
-    /// The folder.
-    pub dir: PathBuf,
-}
-
-impl MapFolder {
-    /// The folder `dir`.
-    pub fn new(dir: impl Into<PathBuf>) -> Self {
-        Self { dir: dir.into() }
-    }
-
-    /// The map file of frame `i` of `input` (`<rgb name>.png`).
-    pub fn map_path(&self, input: &Input, i: usize) -> Option<PathBuf> {
-        Some(self.dir.join(input.map_name(i)?))
-    }
-
-    /// The record, when the folder has one.
-    pub fn read_record(&self) -> Option<Result<Value>> {
-        let path = self.dir.join(RECORD_FILE);
-        let text = std::fs::read_to_string(&path).ok()?;
-        Some(
-            serde_json::from_str(&text)
-                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
-        )
-    }
-
-    /// Writes the record atomically; a `complete` one lists every map file with its size and
-    /// checksum ([`MapFolder::file_checksums`]).
-    pub fn write_record(
-        &self,
-        input: &Input,
-        config: &Value,
-        status: &str,
-        results: Value,
-    ) -> Result<()> {
-        std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
-        let mut doc = json!({
-            "sequence": input.sequence.dir,
-            "config": config,
-            "status": status,
-            "results": results,
-        });
-        if status == "complete" {
-            doc["files"] = self.file_checksums(input)?;
-        }
-        let text = serde_json::to_string_pretty(&doc)
-            .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
-        dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
-        Ok(())
-    }
-
-    /// The cache folder `<root>/<prefix>-<key>` of the maps that `config` (their record's
-    /// `config` document) describes, its key, and whether it already holds them complete.
-    pub fn in_cache(
-        root: &Path,
-        prefix: &str,
-        input: &Input,
-        config: &Value,
-    ) -> (Self, String, bool) {
-        let key = Fnv64::of(config.to_string().as_bytes());
-        let folder = Self::new(root.join(format!("{prefix}-{key}")));
-        let reused = match folder.check_cache(input, config) {
-            CacheCheck::Valid => true,
-            CacheCheck::Absent => false,
-            CacheCheck::Damaged(why) => {
-                tracing::warn!(
-                    "the cached maps in {} are damaged ({why}); recomputing them",
-                    folder.dir.display()
-                );
-                false
-            }
-        };
-        (folder, key, reused)
-    }
-
-    /// True when the record says `config`, the run completed, and every frame's map is the
-    /// file that was recorded ([`MapFolder::check_cache`]).
-    pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
-        self.check_cache(input, config) == CacheCheck::Valid
-    }
-
-    /// Size and FNV-64 checksum of every frame's map file (bad frames of a run that skips
-    /// them have none), by file name: `{"<name>.png": {"bytes": n, "fnv64": "…"}}`.
-    pub fn file_checksums(&self, input: &Input) -> Result<Value> {
-        let files = (0..input.len())
-            .into_par_iter()
-            .filter(|&i| !input.is_bad(i))
-            .map(|i| {
-                let path = self
-                    .map_path(input, i)
-                    .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
-                let bytes = std::fs::read(&path).map_err(|e| dynapix_io::IoError::io(&path, e))?;
-                let name = path
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                Ok((name, file_fingerprint(&bytes)))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(Value::Object(files.into_iter().collect()))
-    }
-
-    /// Whether this folder holds the complete maps of `config`: its record says `config` and
-    /// `complete`, and every frame's map has the size and checksum the record lists.
-    pub fn check_cache(&self, input: &Input, config: &Value) -> CacheCheck {
-        let rec = match self.read_record() {
-            None => return CacheCheck::Absent,
-            Some(Err(e)) => return CacheCheck::Damaged(e.to_string()),
-            Some(Ok(rec)) => rec,
-        };
-        if rec.get("config") != Some(&as_read_back(config)) {
-            return CacheCheck::Damaged(format!(
-                "{} describes other maps than its key",
-                self.dir.join(RECORD_FILE).display()
-            ));
-        }
-        if rec.get("status").and_then(Value::as_str) != Some("complete") {
-            // An interrupted computation: not damage, just unfinished.
-            return CacheCheck::Absent;
-        }
-        let Some(files) = rec.get("files").and_then(Value::as_object) else {
-            return CacheCheck::Damaged(format!(
-                "{} lists no checksums (written by an older version)",
-                self.dir.join(RECORD_FILE).display()
-            ));
-        };
-        let problem = (0..input.len())
-            .into_par_iter()
-            .filter(|&i| !input.is_bad(i))
-            .filter_map(|i| {
-                let path = self.map_path(input, i)?;
-                let name = path.file_name()?.to_string_lossy().into_owned();
-                let Some(expected) = files.get(&name) else {
-                    return Some((i, format!("{}: not in the record", path.display())));
-                };
-                match std::fs::read(&path) {
-                    Err(e) => Some((i, format!("{}: {e}", path.display()))),
-                    Ok(bytes) if &file_fingerprint(&bytes) != expected => Some((
-                        i,
-                        format!(
-                            "{}: {} bytes, not the {} bytes with the checksum the record lists",
-                            path.display(),
-                            bytes.len(),
-                            expected.get("bytes").unwrap_or(&Value::Null)
-                        ),
-                    )),
-                    Ok(_) => None,
-                }
-            })
-            .min_by_key(|(i, _)| *i);
-        match problem {
-            Some((_, why)) => CacheCheck::Damaged(why),
-            None => CacheCheck::Valid,
-        }
-    }
-
-    /// Writes the map of one frame atomically.
-    pub fn write_map(&self, input: &Input, i: usize, p: &MotionProbability) -> Result<()> {
-        let path = self
-            .map_path(input, i)
-            .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
-        let _stage = tracing::info_span!(target: "dynapix::stage", "write maps").entered();
-        write_motion_probability(path, p)?;
-        Ok(())
-    }
-}
-
-/// What [`MapFolder::check_cache`] found.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum CacheCheck {
-    /// No maps of this job yet (no record, or an interrupted computation).
-    Absent,
-    /// The record and every map file match: the folder can be used as it is.
-    Valid,
-    /// A complete record whose files (or the record itself) do not match; why.
-    Damaged(String),
-}
-
-/// Size and FNV-64 checksum of a file's bytes, as recorded in a cache record.
-pub fn file_fingerprint(bytes: &[u8]) -> Value {
-    json!({"bytes": bytes.len(), "fnv64": Fnv64::of(bytes)})
-}
-
-/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
-/// the last place away from the value that was written, so a record read from a file is
-/// compared with the expected record after the same round trip.
-pub fn as_read_back(v: &Value) -> Value {
-    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
-}
-
-/// Where the maps of a pass came from and what made them.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MapSet {
-    /// The folder of the maps.
-    pub folder: MapFolder,
-    /// Provenance (written into `run.json`).
-    pub record: Value,
-    /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
-    /// a record).
-    pub ground_truth: Option<bool>,
-}
-
-impl MapSet {
-    /// The maps of a folder made elsewhere (a sequence's own `prob/`): provenance from its
-    /// `motion.json` when it has one.
-    pub fn existing(folder: MapFolder, source: &str) -> Result<Self> {
-        let mut record = json!({"source": source, "dir": folder.dir});
-        let ground_truth = match folder.read_record() {
-            None => {
-                record["provenance"] = json!("unknown: no motion.json beside the maps");
-                None
-            }
-            Some(Err(e)) => return Err(e),
-            Some(Ok(rec)) => {
-                let gt = record_uses_ground_truth(&rec);
-                record["poses"] = json!(match gt {
-                    Some(true) => "ground truth",
-                    Some(false) => "not ground truth",
-                    None => "unknown",
-                });
-                record["motion_json"] = rec;
-                gt
-            }
-        };
-        Ok(Self {
-            folder,
-            record,
-            ground_truth,
-        })
-    }
-}
-
-/// Whether a `motion.json` record says its maps were made with ground-truth poses
-/// (`None` when it does not say).
-pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
-    let poses = rec.pointer("/config/poses")?;
-    if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
-        return Some(src == "ground_truth");
-    }
-    // Records written before provenance was structured: `"source": "gt" | "file"`.
-    match poses.get("source").and_then(Value::as_str)? {
-        "gt" => Some(true),
-        "file" => Some(false),
-        _ => None,
-    }
-}
-
-/// The maps of `job` in the cache folder `root`: a folder `maps-<key>` is reused when its
-/// record matches the job exactly and every map exists, else (re)computed completely.
+/// The maps of `job`, with the cache folder `root` when given: a folder `maps-<key>` is
+/// reused when its record matches the job exactly and every map exists, else the maps are
+/// computed, kept in memory and written there as they come. Without a cache nothing is
+/// written.
 pub fn cached_maps(
     job: &MapJob<'_>,
-    root: &Path,
+    root: Option<&Path>,
     label: &str,
     progress: &dyn Progress,
 ) -> Result<MapSet> {
     let config = job.record();
-    let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
-    if !reused {
-        compute_into(job, &folder, &config, label, progress)?;
-    }
     let ground_truth = job.poses.origin.is_ground_truth();
+    let Some(root) = root else {
+        let memory = compute_maps(job, None, &config, label, progress)?.0;
+        return Ok(MapSet {
+            folder: None,
+            memory: Some(memory),
+            record: json!({
+                "source": "computed (no cache)",
+                "dir": null,
+                "poses": job.poses.origin,
+                "ground_truth_poses": ground_truth,
+                "config": config,
+            }),
+            ground_truth: Some(ground_truth),
+        });
+    };
+    let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
+    let memory = if reused {
+        None
+    } else {
+        Some(compute_maps(job, Some(&folder), &config, label, progress)?.0)
+    };
     let record = json!({
         "source": if reused { "cache (key matched)" } else { "computed" },
         "dir": folder.dir,
@@ -716,7 +484,8 @@ pub fn cached_maps(
         "config": config,
     });
     Ok(MapSet {
-        folder,
+        folder: Some(folder),
+        memory,
         record,
         ground_truth: Some(ground_truth),
     })
@@ -731,29 +500,46 @@ pub fn compute_into(
     label: &str,
     progress: &dyn Progress,
 ) -> Result<SequenceStats> {
+    compute_maps(job, Some(folder), config, label, progress).map(|(_, stats)| stats)
+}
+
+/// Computes every frame of `job` (but the bad frames of a run that skips them) into memory,
+/// and into `folder` when given (recorded complete at the end).
+fn compute_maps(
+    job: &MapJob<'_>,
+    folder: Option<&MapFolder>,
+    config: &Value,
+    label: &str,
+    progress: &dyn Progress,
+) -> Result<(crate::store::MemoryMaps, SequenceStats)> {
     let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
-    folder.write_record(job.input, config, "running", Value::Null)?;
+    if let Some(f) = folder {
+        f.write_record(job.input, config, "running", Value::Null)?;
+    }
+    let sink = MapSink::new(job.input, folder);
     let all: Vec<usize> = (0..n).filter(|&i| !job.input.is_bad(i)).collect();
     let task = Task::begin(progress, label, all.len());
     let stats = job.run(
         &all,
         |m| {
-            folder.write_map(job.input, m.index, &MotionProbability::new(m.p))?;
+            sink.put(m.index, &MotionProbability::new(m.p))?;
             Ok(())
         },
         |_, ()| task.step(""),
     )?;
     drop(task);
-    folder.write_record(
-        job.input,
-        config,
-        "complete",
-        json!({
-            "frames_computed": stats.frames,
-            "compute_seconds": stats.compute_seconds,
-            "threads": rayon::current_num_threads(),
-        }),
-    )?;
-    Ok(stats)
+    if let Some(f) = folder {
+        f.write_record(
+            job.input,
+            config,
+            "complete",
+            json!({
+                "frames_computed": stats.frames,
+                "compute_seconds": stats.compute_seconds,
+                "threads": rayon::current_num_threads(),
+            }),
+        )?;
+    }
+    Ok((sink.finish(), stats))
 }

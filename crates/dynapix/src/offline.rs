@@ -16,6 +16,10 @@
 //! - **Weighted passes**: `passes.weighted` of them (paper mode 2, reference mode 1 = the
 //!   paper's schedule); P of each combines the enabled cues ([`crate::Cues`]) by noisy-or.
 //!
+//! Everything is passed in memory: the maps of a pass are kept in their stored 16-bit form
+//! ([`crate::store`]), so a run with a fresh cache, a run from the cache and a run without a
+//! cache ([`RunOptions::cache_dir`] `None`: nothing is written) track with the same weights.
+//!
 //! Nothing here parses command lines or prints; progress goes to a [`Progress`] callback and
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
 //! write.
@@ -43,9 +47,11 @@ pub const SLAM_PASS_VERSION: u32 = 2;
 /// Options of a run that are about files, not about the method.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
-    /// Cache of first passes and motion maps (default [`default_cache_dir`]:
-    /// `<sequence>/dynapix_cache`, or a folder under the user's cache directory when the
-    /// sequence folder cannot be written).
+    /// Cache of first passes and motion maps: what is found there is reused, what is
+    /// computed is written there as a side effect. `None`: no cache, nothing is written
+    /// (everything is computed in memory). Callers that want the usual place give
+    /// [`default_cache_dir`] (`<sequence>/dynapix_cache`, or a folder under the user's cache
+    /// directory when the sequence folder cannot be written).
     pub cache_dir: Option<PathBuf>,
     /// Ignore the sequence's own `prob/` folder and compute the maps.
     pub recompute_maps: bool,
@@ -102,7 +108,7 @@ fn user_cache_root() -> PathBuf {
 
 /// True when the user's cache directory is the temporary directory (no `HOME` nor
 /// `XDG_CACHE_HOME`).
-fn user_cache_is_temporary() -> bool {
+pub fn user_cache_is_temporary() -> bool {
     user_cache_root() == std::env::temp_dir()
 }
 
@@ -262,33 +268,17 @@ pub struct OfflineRunner<'a> {
     config: &'a Config,
     input: &'a Input,
     options: RunOptions,
+    /// The rigidity maps, once computed or found (they need no poses: one set per runner).
+    rigidity: std::sync::OnceLock<MapSet>,
+    /// The first pass, once run or found (the same for every run of the runner).
+    first: std::sync::OnceLock<FirstPassResult>,
 }
 
 impl<'a> OfflineRunner<'a> {
     /// A runner for `config` on `input`; checks the configuration and the method's inputs
     /// (DynaPix+ masks).
-    pub fn new(config: &'a Config, input: &'a Input, mut options: RunOptions) -> Result<Self> {
+    pub fn new(config: &'a Config, input: &'a Input, options: RunOptions) -> Result<Self> {
         config.validate()?;
-        if options.cache_dir.is_none() {
-            let dir = default_cache_dir(&input.sequence.dir);
-            if !dir.starts_with(&input.sequence.dir) {
-                if user_cache_is_temporary() {
-                    tracing::warn!(
-                        "{} is not writable and neither HOME nor XDG_CACHE_HOME is set: caching \
-                         in {} (pass --cache DIR to keep the cache elsewhere)",
-                        input.sequence.dir.display(),
-                        dir.display()
-                    );
-                } else {
-                    tracing::info!(
-                        "{} is not writable: caching in {}",
-                        input.sequence.dir.display(),
-                        dir.display()
-                    );
-                }
-            }
-            options.cache_dir = Some(dir);
-        }
         // Only runs that cache (DynaPix: first pass and maps) need it, so an ORB-SLAM2 run
         // creates no cache folder.
         if config.method.terms().is_some()
@@ -300,6 +290,8 @@ impl<'a> OfflineRunner<'a> {
             config,
             input,
             options,
+            rigidity: std::sync::OnceLock::new(),
+            first: std::sync::OnceLock::new(),
         };
         if config.method.needs_masks() {
             let d = r.masks_dir();
@@ -318,12 +310,9 @@ impl<'a> OfflineRunner<'a> {
         self.config
     }
 
-    /// The cache folder (resolved by [`OfflineRunner::new`]).
-    pub fn cache_dir(&self) -> PathBuf {
-        self.options
-            .cache_dir
-            .clone()
-            .unwrap_or_else(|| default_cache_dir(&self.input.sequence.dir))
+    /// The cache folder, when the run has one ([`RunOptions::cache_dir`]).
+    pub fn cache_dir(&self) -> Option<&Path> {
+        self.options.cache_dir.as_deref()
     }
 
     /// The DynaPix+ mask folder.
@@ -353,7 +342,7 @@ impl<'a> OfflineRunner<'a> {
         let weights = match maps {
             None => PassWeights::None,
             Some(m) => PassWeights::Maps {
-                dir: &m.folder.dir,
+                maps: m,
                 threshold: method.thresholds().then_some(config.dynapix.gamma_add),
                 allow_missing: self.options.allow_missing_maps,
             },
@@ -378,9 +367,13 @@ impl<'a> OfflineRunner<'a> {
         if !wanted {
             return Ok(None);
         }
+        if let Some(m) = self.rigidity.get() {
+            return Ok(Some(m.clone()));
+        }
         let _ = self.input.bad_frames();
         let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
-        cached_rigidity(&job, &self.cache_dir(), "rigidity maps", progress).map(Some)
+        let maps = cached_rigidity(&job, self.cache_dir(), "rigidity maps", progress)?;
+        Ok(Some(self.rigidity.get_or_init(|| maps).clone()))
     }
 
     /// The cache key document of the first pass.
@@ -420,10 +413,17 @@ impl<'a> OfflineRunner<'a> {
                 record: json!({"source": "given by the caller"}),
             });
         }
+        if let Some(f) = self.first.get() {
+            return Ok(f.clone());
+        }
         let doc = self.first_pass_record();
         let key = Fnv64::of(doc.to_string().as_bytes());
-        let dir = self.cache_dir().join(format!("first-pass-{key}"));
-        if let Some(trajectory) = read_cached_first_pass(&dir, &doc) {
+        let dir = self
+            .cache_dir()
+            .map(|c| c.join(format!("first-pass-{key}")));
+        if let Some(dir) = &dir
+            && let Some(trajectory) = read_cached_first_pass(dir, &doc)
+        {
             return Ok(FirstPassResult {
                 trajectory,
                 output: None,
@@ -455,12 +455,19 @@ impl<'a> OfflineRunner<'a> {
                 )?
             }
         };
-        write_first_pass_cache(&dir, &doc, &out)?;
-        Ok(FirstPassResult {
+        let source = match &dir {
+            Some(dir) => {
+                write_first_pass_cache(dir, &doc, &out)?;
+                "computed"
+            }
+            None => "computed (no cache)",
+        };
+        let result = FirstPassResult {
             trajectory: as_written(&out.trajectory)?,
-            record: json!({"source": "computed", "dir": dir, "key": key, "stats": out.stats}),
+            record: json!({"source": source, "dir": dir, "key": key, "stats": out.stats}),
             output: Some(out),
-        })
+        };
+        Ok(self.first.get_or_init(|| result).clone())
     }
 
     /// Poses for the maps of weighted pass `k` (1-based): the configured fixed source, or the
@@ -510,7 +517,7 @@ impl<'a> OfflineRunner<'a> {
         };
         let job = MapJob::new(self.input, self.config, poses).with_rigidity(rigidity);
         let label = format!("motion maps (pass {k})");
-        cached_maps(&job, &self.cache_dir(), &label, progress)
+        cached_maps(&job, self.cache_dir(), &label, progress)
     }
 
     /// The sequence's own maps, when this run uses them for the first weighted pass.

@@ -21,7 +21,7 @@
 //! - the **geometric cue** takes the static depth from the depths of the window, the kept
 //!   keyframes and the waiting frames, splatted with the poses the running system gave them;
 //! - the enabled cues ([`crate::Cues`]; the paper's terms P = D·M only when that cue is on)
-//!   combine by noisy-or into static weights (quantised like the map files) and the SLAM
+//!   combine by noisy-or ([`crate::combine`], the offline runner's combiner) into static weights (quantised like the map files) and the SLAM
 //!   system tracks m with them;
 //! - the local mapping and loop closing of the keyframe made from the frame before m run
 //!   while m's motion map is computed (with m's FAST corners), and the system tracks m only
@@ -48,13 +48,14 @@ use dynapix_motion::moving::to_gray;
 use dynapix_motion::static_depth::{DepthView, WorkingDepth, geometric_term, static_depth};
 use dynapix_motion::{
     FloatImage, FrameImages, MotionParams, Neighbour, ReconstructParams, RgbdImages, RigidFrame,
-    RigidityParams, Source, StaticBackground, motion_probability, noisy_or, reconstruct_background,
+    RigidityParams, Source, StaticBackground, motion_probability, reconstruct_background,
 };
 use dynapix_slam::FeatureStage;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, MappingOutcome, System, SystemParams};
 use image::{GrayImage, RgbImage};
 
+use crate::combine::FrameCues;
 use crate::config::{Config, Cues};
 use crate::error::{Error, Result};
 use crate::input::Camera;
@@ -602,13 +603,12 @@ impl Core {
         let (weights, background, mean_probability) = match self.cues {
             None => (None, None, 0.0),
             Some(cues) => {
-                let mut p = FloatImage::new(self.cam.width, self.cam.height);
+                let mut paper = None;
                 let mut background = None;
                 if let Some(params) = &self.params {
                     let bg = Arc::new(self.background(index, images, &t_wc)?);
                     background_ms = t0.elapsed().as_secs_f64() * 1e3;
-                    let paper = self.motion(index, images, &bg, &t_wc, params)?;
-                    noisy_or(&mut p, paper.as_image())?;
+                    paper = Some(self.motion(index, images, &bg, &t_wc, params)?.into_image());
                     background = Some(bg);
                 }
                 // The two cues are independent: compute them side by side, combine in order.
@@ -628,13 +628,12 @@ impl Core {
                             .transpose()
                     },
                 );
-                if let Some(r) = rigid? {
-                    noisy_or(&mut p, &r)?;
-                }
-                if let Some(g) = geometric? {
-                    noisy_or(&mut p, &g)?;
-                }
-                let p = MotionProbability::new(p);
+                let cues = FrameCues {
+                    paper,
+                    geometric: geometric?,
+                    rigidity: rigid?,
+                };
+                let p = MotionProbability::new(cues.combine(self.cam.width, self.cam.height)?);
                 let mean = p.as_image().iter().sum::<f32>() / p.as_image().len().max(1) as f32;
                 let w = p.static_weights();
                 let w = if self.config.method.thresholds() {

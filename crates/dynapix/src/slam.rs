@@ -11,21 +11,20 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use dynapix_io::images::read_mask;
-use dynapix_io::weights::read_static_weights;
 use dynapix_io::{DepthImage, FrameStatus, StampedPose, StampedStatus, StaticWeights, Trajectory};
-use dynapix_slam::loop_closing::LoopEvent;
 use dynapix_slam::orb::{OrbExtractor, rgb_to_gray_orbslam};
 use dynapix_slam::system::{FrameInput, FrameResult, System, SystemParams};
 use dynapix_slam::tracking::TrackingState;
 use dynapix_slam::vocab::Vocabulary;
 use dynapix_slam::{FeatureStage, Features};
 use image::{GrayImage, RgbImage};
-use serde::Serialize;
 
 use crate::config::VocabularyChoice;
 use crate::error::{BadFrame, Error, Result, StoppedPass};
 use crate::input::{Camera, Input};
+pub use crate::pass::{FrameTiming, PassOutput, PassStats};
 use crate::progress::{Progress, Task};
+use crate::store::MapSet;
 
 /// The status-file value of a tracking state.
 pub fn frame_status(state: TrackingState) -> FrameStatus {
@@ -57,75 +56,6 @@ pub fn load_vocabulary(choice: &VocabularyChoice) -> Result<Option<Vocabulary>> 
                 })
         }
     }
-}
-
-/// Step times of one frame, in milliseconds.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct FrameTiming {
-    /// Frame index.
-    pub index: u64,
-    /// Frame time (s).
-    pub timestamp: f64,
-    /// Feature extraction.
-    pub extract_ms: f64,
-    /// Tracking without extraction.
-    pub track_ms: f64,
-    /// Local mapping.
-    pub mapping_ms: f64,
-    /// Loop closing.
-    pub loop_ms: f64,
-    /// A keyframe was created.
-    pub keyframe: bool,
-    /// State after the frame.
-    #[serde(serialize_with = "status_word")]
-    pub status: FrameStatus,
-}
-
-fn status_word<S: serde::Serializer>(
-    s: &FrameStatus,
-    ser: S,
-) -> std::result::Result<S::Ok, S::Error> {
-    ser.serialize_str(s.as_str())
-}
-
-/// Counters of a pass.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
-pub struct PassStats {
-    /// Frames processed.
-    pub frames: usize,
-    /// Frames tracked.
-    pub tracked: usize,
-    /// Keyframes in the final map.
-    pub keyframes: usize,
-    /// Map points in the final map.
-    pub map_points: usize,
-    /// Loops closed.
-    pub loops_closed: usize,
-    /// Wall-clock seconds of the pass.
-    pub seconds: f64,
-    /// Frames that ran unweighted because their probability map was missing.
-    pub frames_without_prob_map: usize,
-    /// Frames skipped because their files cannot be used (recorded lost).
-    pub frames_skipped: usize,
-}
-
-/// What a pass leaves.
-#[derive(Clone, Debug)]
-pub struct PassOutput {
-    /// Tracked frames with their current (BA-refined) camera-to-world pose.
-    pub trajectory: Trajectory,
-    /// Per frame: tracked / lost / not initialised.
-    pub status: Vec<StampedStatus>,
-    /// Keyframes in the final map, by creation.
-    pub keyframes: Trajectory,
-    /// Loops closed, in order.
-    pub loops: Vec<LoopEvent>,
-    /// Per-frame step times.
-    pub timings: Vec<FrameTiming>,
-    /// Counters.
-    pub stats: PassStats,
-    /// Frames skipped because their files cannot be used, in order.
-    pub skipped: Vec<BadFrame>,
 }
 
 /// A SLAM system being fed frames, with the bookkeeping of a pass.
@@ -240,6 +170,72 @@ impl SlamSession {
         Ok(res)
     }
 
+    /// Loads the saved map `path` (`dynapix_slam::persist`), checks it against this
+    /// session's camera (with `depth_factor`), ORB pyramid and vocabulary, and switches the
+    /// system to localisation mode on it (only tracking against the map). Errors name the
+    /// file.
+    pub fn load_map(&mut self, path: &Path, depth_factor: f64) -> Result<MapLoad> {
+        use dynapix_slam::persist::{PersistError, decode};
+        let t0 = Instant::now();
+        let bytes = std::fs::read(path).map_err(|source| PersistError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let t1 = Instant::now();
+        let saved = decode(&bytes).map_err(|source| Error::Map {
+            context: format!("cannot load map {}", path.display()),
+            source,
+        })?;
+        let system = &mut self.system;
+        let pyramid = system.map().pyramid.clone();
+        saved
+            .check_compatible(system.camera(), depth_factor, &pyramid, system.vocabulary())
+            .map_err(|source| Error::Map {
+                context: format!("cannot use map {} for this run", path.display()),
+                source,
+            })?;
+        let t2 = Instant::now();
+        let (keyframes, points) = (saved.num_keyframes(), saved.num_points());
+        let params = system.map().params.clone();
+        system.enter_localization(saved.into_map(params));
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        Ok(MapLoad {
+            keyframes,
+            points,
+            bytes: bytes.len(),
+            read_ms: ms(t0, t1),
+            check_ms: ms(t1, t2),
+            rebuild_ms: t2.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Encodes the system's map (`dynapix_slam::persist`, with `depth_factor`) and writes it
+    /// atomically to `path`.
+    pub fn save_map(&self, path: &Path, depth_factor: f64) -> Result<MapSave> {
+        let context = || format!("cannot save map {}", path.display());
+        let system = &self.system;
+        let t0 = Instant::now();
+        let bytes = dynapix_slam::persist::encode(
+            system.map(),
+            system.camera(),
+            depth_factor,
+            system.vocabulary(),
+        )
+        .map_err(|source| Error::Map {
+            context: context(),
+            source,
+        })?;
+        let t1 = Instant::now();
+        dynapix_io::write_atomic(path, &bytes).map_err(|e| Error::file(path, e.to_string()))?;
+        Ok(MapSave {
+            keyframes: system.map().num_keyframes(),
+            points: system.map().num_points(),
+            bytes: bytes.len(),
+            encode_ms: (t1 - t0).as_secs_f64() * 1e3,
+            write_ms: t1.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
     /// Ends the sequence (the system's final refinement, if its parameters ask for one).
     pub fn finish(&mut self) {
         if let Some(g) = self.system.finish() {
@@ -308,15 +304,47 @@ impl SlamSession {
     }
 }
 
+/// A saved map loaded by [`SlamSession::load_map`]: its size and where the time went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapLoad {
+    /// Keyframes in the map.
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub points: usize,
+    /// Size of the file.
+    pub bytes: usize,
+    /// Milliseconds reading the file.
+    pub read_ms: f64,
+    /// Milliseconds decoding and checking it.
+    pub check_ms: f64,
+    /// Milliseconds rebuilding the live map.
+    pub rebuild_ms: f64,
+}
+
+/// A map saved by [`SlamSession::save_map`]: its size and where the time went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapSave {
+    /// Keyframes in the map.
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub points: usize,
+    /// Size of the file.
+    pub bytes: usize,
+    /// Milliseconds encoding the map.
+    pub encode_ms: f64,
+    /// Milliseconds writing the file.
+    pub write_ms: f64,
+}
+
 /// The weights of a pass.
 #[derive(Clone, Copy, Debug)]
 pub enum PassWeights<'a> {
     /// None (ORB-SLAM2).
     None,
-    /// Probability maps in a folder, named like the rgb images (`.png`).
+    /// Probability maps of the frames (in memory or in a folder).
     Maps {
-        /// The folder.
-        dir: &'a Path,
+        /// The maps.
+        maps: &'a MapSet,
         /// Threshold ablation: P > γ drops a keypoint, the rest weighs 1.
         threshold: Option<f32>,
         /// A missing map runs its frame unweighted (counted) instead of stopping the pass.
@@ -372,26 +400,23 @@ fn decode(
         }
         (
             PassWeights::Maps {
-                dir,
+                maps,
                 threshold,
                 allow_missing,
             },
-            Some(name),
-        ) => {
-            let p = dir.join(name);
-            if allow_missing && !p.exists() {
+            Some(_),
+        ) => match maps.static_weights(input, i) {
+            Ok(Some(w)) => Ok(Some(match threshold {
+                Some(g) => w.thresholded(g),
+                None => w,
+            })),
+            Ok(None) if allow_missing => {
                 missing = true;
                 Ok(None)
-            } else {
-                let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
-                read_static_weights(&p)
-                    .map(|w| match threshold {
-                        Some(g) => Some(w.thresholded(g)),
-                        None => Some(w),
-                    })
-                    .map_err(Error::from)
             }
-        }
+            Ok(None) => Err(maps.missing(input, i)),
+            Err(e) => Err(e),
+        },
     };
     let mask = match masks {
         None => Ok(None),

@@ -343,6 +343,93 @@ fn weighted_offline_run_beats_orbslam2() {
     assert_eq!(dpx.record["config"]["method"], "dynapix");
 }
 
+/// Every file and folder under `dir` with its size and modification time.
+fn tree(dir: &Path) -> Vec<(PathBuf, u64, std::time::SystemTime)> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let e = e.unwrap();
+        let m = e.metadata().unwrap();
+        out.push((e.path(), m.len(), m.modified().unwrap()));
+        if m.is_dir() {
+            out.extend(tree(&e.path()));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Sets or clears the read-only bit of every file and folder under `dir` (and `dir`).
+fn set_read_only(dir: &Path, ro: bool) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            set_read_only(&e.path(), ro);
+        } else {
+            let mut p = e.metadata().unwrap().permissions();
+            p.set_readonly(ro);
+            std::fs::set_permissions(e.path(), p).unwrap();
+        }
+    }
+    let mut p = std::fs::metadata(dir).unwrap().permissions();
+    p.set_readonly(ro);
+    std::fs::set_permissions(dir, p).unwrap();
+}
+
+#[test]
+fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = camera_only(tmp.path());
+    let mut config = Config::default();
+    config.sequence.max_frames = Some(30);
+    config.motion.flow = FlowPreset::Ultrafast;
+    let input = open(&seq, &config);
+    // A cold cache, then the same run from the cache.
+    let cache = tmp.path().join("cache");
+    let cold = offline(&config, &input, &cache);
+    let warm = offline(&config, &input, &cache);
+    assert_eq!(warm.record["prob"]["source"], "cache (key matched)");
+    // The whole run (rigidity maps, first pass, motion maps of both weighted passes) with
+    // no cache folder, on a sequence folder it may not write to.
+    set_read_only(&seq, true);
+    let before = tree(&seq);
+    let options = RunOptions {
+        cache_dir: None,
+        ..Default::default()
+    };
+    let runner = OfflineRunner::new(&config, &input, options).unwrap();
+    assert_eq!(runner.cache_dir(), None);
+    let none = runner.run(&NoProgress);
+    let after = tree(&seq);
+    set_read_only(&seq, false);
+    let none = none.unwrap();
+    assert_eq!(before, after, "the sequence folder was written to");
+    assert_eq!(none.record["prob"]["source"], "computed (no cache)");
+    assert_eq!(none.record["first_pass"]["source"], "computed (no cache)");
+    assert!(none.maps.iter().all(|m| m.dir().is_none()));
+    assert_eq!(none.passes.len(), config.passes.weighted);
+    // The same trajectories to the bit: fresh, cached and folder-less runs read the same
+    // quantised maps.
+    for (k, p) in none.passes.iter().enumerate() {
+        assert_eq!(p.trajectory, cold.passes[k].trajectory, "pass {}", k + 1);
+        assert_eq!(p.trajectory, warm.passes[k].trajectory, "pass {}", k + 1);
+    }
+    assert_eq!(
+        none.first_pass.as_ref().unwrap().trajectory,
+        warm.first_pass.as_ref().unwrap().trajectory
+    );
+    // The maps in memory are the cached files' values.
+    let m = &none.maps[0];
+    let cached = &warm.maps[0];
+    assert!(cached.memory.is_none() && m.memory.is_some());
+    for i in [0, 13, 29] {
+        assert_eq!(
+            m.stored(&input, i).unwrap().unwrap(),
+            cached.stored(&input, i).unwrap().unwrap(),
+            "map of frame {i}"
+        );
+    }
+}
+
 #[test]
 fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     let tmp = tempfile::tempdir().unwrap();
@@ -364,14 +451,14 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
         first.final_pass().unwrap().trajectory
     );
     // The maps of the first weighted pass (what `record["prob"]` describes).
-    let dir1 = again.maps[0].folder.dir.clone();
+    let dir1 = again.maps[0].dir().unwrap().to_path_buf();
     // A motion parameter changes: other key, maps recomputed.
     let mut changed = config.clone();
     changed.motion.params.movable.clip_hi += 5.0;
     let c = offline(&changed, &input, &cache);
     assert_eq!(c.record["prob"]["source"], "computed");
     assert_eq!(c.record["first_pass"]["source"], "cache (key matched)");
-    assert_ne!(c.maps[0].folder.dir, dir1);
+    assert_ne!(c.maps[0].dir().unwrap(), dir1);
     // Another first pass (SLAM parameters changed) is run, not taken from the cache.
     let mut slam = config.clone();
     slam.slam.params.tracking.motion_th = 14.0;
@@ -435,7 +522,7 @@ fn a_damaged_cache_is_found_and_recomputed() {
     let input = open(&seq, &config);
     let first = offline(&config, &input, &cache);
     let reference = first.final_pass().unwrap().trajectory.clone();
-    let dir = first.maps[0].folder.dir.clone();
+    let dir = first.maps[0].folder.clone().unwrap().dir;
     let folder = MapFolder::new(&dir);
     let rec: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("motion.json")).unwrap()).unwrap();

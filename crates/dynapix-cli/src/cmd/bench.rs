@@ -55,6 +55,7 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         seed: None,
         masks: None,
         cache: None,
+        no_cache: true,
         recompute_prob: true,
         allow_missing_prob: false,
         allow_untracked: true,

@@ -148,6 +148,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 } else {
                     first_pass.clone()
                 },
+                cache_dir: run::cache_for(&input, None, false),
                 ..Default::default()
             };
             eprintln!("[{}/{n}] {preset}: {}", i + 1, method.name());

@@ -118,8 +118,8 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 .with_context(|| format!("cannot read the sequence {}", s.display()))
         })
         .collect::<anyhow::Result<_>>()?;
-    let options = |name: &str| RunOptions {
-        cache_dir: args.cache.as_ref().map(|c| c.join(name)),
+    let options = |input: &Input, name: &str| RunOptions {
+        cache_dir: super::run::cache_for(input, args.cache.as_ref().map(|c| c.join(name)), false),
         ..Default::default()
     };
     // Phase 1: first passes and motion maps, sequentially, once per probability variant.
@@ -133,7 +133,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             seen.push(terms);
             eprintln!("{name}: motion maps ({terms:?})");
             let config = base.clone().with_method(m);
-            OfflineRunner::new(&config, input, options(name))?.prepare(bars)?;
+            OfflineRunner::new(&config, input, options(input, name))?.prepare(bars)?;
         }
     }
     // Phase 2: SLAM runs in parallel.
@@ -171,7 +171,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 let spec = RunSpec {
                     input,
                     config: config.clone(),
-                    options: options(name),
+                    options: options(input, name),
                     out: dir.clone(),
                     runs: 1,
                     first_run: *k,

@@ -242,7 +242,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 (p, m, path.display().to_string())
             }
             PoseSource::Own => {
-                let runner = OfflineRunner::new(&config, &input, RunOptions::default())?;
+                let runner = OfflineRunner::new(&config, &input, motion_cache(&input))?;
                 let first = runner.first_pass(bars)?;
                 (
                     FramePoses::from_pass(&first.trajectory, &stamps, 0)?,
@@ -287,7 +287,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         traj.write_tum(path)?;
     }
     let rigidity =
-        OfflineRunner::new(&config, &input, RunOptions::default())?.rigidity_maps(bars)?;
+        OfflineRunner::new(&config, &input, motion_cache(&input))?.rigidity_maps(bars)?;
     let job = MapJob {
         pose_notes: notes,
         ..MapJob::new(&input, &config, &poses)
@@ -483,4 +483,12 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     }
     folder.write_record(&input, &record, "complete", results)?;
     Ok(())
+}
+
+/// The runner options of `motion`: the sequence's default cache (first pass, rigidity maps).
+fn motion_cache(input: &dynapix::Input) -> RunOptions {
+    RunOptions {
+        cache_dir: super::run::cache_for(input, None, false),
+        ..RunOptions::default()
+    }
 }

@@ -19,16 +19,14 @@
 //! frames instead and lists them).
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{Context, bail};
 use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::stream::OnlineRun;
 use dynapix::{
-    Config, Cue, Cues, FirstPass, FlowPreset, Input, Method, Mode, OnlineDynaPix, PoseSource,
-    RgbdFrame,
+    Config, Cue, Cues, FirstPass, FlowPreset, Input, Method, Mode, PoseSource, ProbUpdate,
 };
-use dynapix_io::{FrameStatus, OutputFolder, StampedPose, StampedStatus, Trajectory};
-use dynapix_slam::weighting::ProbUpdate;
+use dynapix_io::{FrameStatus, OutputFolder, StampedStatus, Trajectory};
 use serde_json::{Value, json};
 
 use super::common::{
@@ -158,6 +156,10 @@ pub struct Args {
     /// Motion-map and first-pass cache (default `SEQ_DIR/dynapix_cache`, or `dynapix/NAME-HASH` under the user cache directory when SEQ_DIR is not writable).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+    /// No cache: compute the first pass and the motion maps in memory, read nothing from a
+    /// cache and write nothing but `--out`.
+    #[arg(long, conflicts_with = "cache")]
+    pub no_cache: bool,
     /// Ignore `SEQ_DIR/prob` and compute the maps into the cache.
     #[arg(long)]
     pub recompute_prob: bool,
@@ -291,7 +293,9 @@ fn write_earlier_passes(
 /// The folders and files a run must not replace: the sequence, the cache, DynaPix+ masks.
 fn kept_paths(input: &Input, runner: &OfflineRunner<'_>) -> Vec<(&'static str, PathBuf)> {
     let mut keep = vec![("the sequence", input.sequence.dir.clone())];
-    keep.push(("the cache", runner.cache_dir()));
+    if let Some(c) = runner.cache_dir() {
+        keep.push(("the cache", c.to_path_buf()));
+    }
     if runner.config().method.needs_masks() {
         keep.push(("the masks", runner.masks_dir()));
     }
@@ -319,7 +323,9 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             Ok(outcome)
         }
         Err(e) => {
-            if let Some(file) = super::common::cache_fault(&e, &runner.cache_dir()) {
+            if let Some(cache) = runner.cache_dir()
+                && let Some(file) = super::common::cache_fault(&e, cache)
+            {
                 // A cache fault is no result: the earlier one stays (issue 36).
                 drop(staged);
                 eprintln!(
@@ -327,7 +333,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
                      the cache folder {} (or pass another --cache) and run again",
                     file.display(),
                     spec.out.display(),
-                    runner.cache_dir().display()
+                    cache.display()
                 );
                 return Err(e);
             }
@@ -393,7 +399,9 @@ fn execute_into(
             if spec.runs > 1 {
                 std::fs::copy(dir.join("trajectory.txt"), out.join("trajectory.txt"))?;
             }
-            outcome.prob_dir = run.final_maps().map(|m| m.folder.dir.clone());
+            outcome.prob_dir = run
+                .final_maps()
+                .and_then(|m| m.dir().map(Path::to_path_buf));
             outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
             // The run's record replaces the record before the run (the runner's own fields).
             let (runs, seed) = (record["runs"].take(), record["seed"].take());
@@ -443,10 +451,15 @@ fn no_ate_reason(ev: Option<&dynapix_eval::files::RunEvaluation>) -> String {
 pub fn execute_online(
     input: &Input,
     config: &Config,
+    masks: Option<&Path>,
     out: &Path,
     bars: &Bars,
 ) -> anyhow::Result<RunOutcome> {
     check_out(out, &[("the sequence", input.sequence.dir.as_path())])?;
+    // DynaPix+ masks (`--masks`, else the sequence's `mask/`), checked before anything is
+    // written.
+    let masks = dynapix::stream::online_masks(input, config, masks)?;
+    let masks = masks.as_deref();
     let staged = OutputFolder::begin(out, RESULT_MARKERS)?;
     let mut record = json!({
         "sequence": input.record(),
@@ -460,7 +473,10 @@ pub fn execute_online(
             "trajectory_refined.txt": "the system's final estimate of every tracked frame",
         },
     });
-    let result = online_into(input, config, staged.path(), &mut record, bars);
+    if let Some(m) = masks {
+        record["masks"] = json!(m);
+    }
+    let result = online_into(input, config, masks, staged.path(), &mut record, bars);
     if let Err(e) = &result {
         merge(&mut record, incomplete(e));
     } else {
@@ -480,30 +496,9 @@ pub fn execute_online(
 }
 
 /// Writes the poses reported so far and every frame's status (skipped frames lost) into `dir`.
-fn write_online_poses(
-    dir: &Path,
-    results: &[dynapix::FrameResult],
-    skipped: &[dynapix::BadFrame],
-) -> anyhow::Result<Vec<StampedStatus>> {
-    let reported = Trajectory::new(
-        results
-            .iter()
-            .filter_map(|r| r.pose_wc.map(|p| StampedPose::new(r.t, p)))
-            .collect(),
-    );
-    reported.write_tum(dir.join("trajectory.txt"))?;
-    let mut status: Vec<StampedStatus> = results
-        .iter()
-        .map(|r| StampedStatus {
-            t: r.t,
-            status: r.status,
-        })
-        .chain(skipped.iter().map(|b| StampedStatus {
-            t: b.timestamp,
-            status: FrameStatus::Lost,
-        }))
-        .collect();
-    status.sort_by(|a, b| a.t.total_cmp(&b.t));
+fn write_online_poses(dir: &Path, run: &OnlineRun) -> anyhow::Result<Vec<StampedStatus>> {
+    run.reported().write_tum(dir.join("trajectory.txt"))?;
+    let status = run.status();
     dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
     Ok(status)
 }
@@ -512,89 +507,22 @@ fn write_online_poses(
 fn online_into(
     input: &Input,
     config: &Config,
+    masks: Option<&Path>,
     dir: &Path,
     record: &mut Value,
     bars: &Bars,
 ) -> anyhow::Result<RunOutcome> {
-    use dynapix::Progress;
-    let mut online = OnlineDynaPix::new(&input.camera, config)?;
-    let n = input.len();
-    let label = format!("{} online", config.method);
-    bars.event(dynapix::ProgressEvent::Begin {
-        task: &label,
-        total: n as u64,
-    });
-    let started = Instant::now();
-    let mut results = Vec::with_capacity(n);
-    let mut skipped = Vec::new();
-    let mut load_ms = 0.0;
-    // Frames are decoded on a reader thread (as a camera driver delivers them), at most two
-    // ahead of the system.
-    let load = |i: usize| {
-        let t0 = Instant::now();
-        let images = (|| -> dynapix::Result<RgbdFrame> {
-            let (rgb, depth) = input.load_rgbd(i)?;
-            let mask = if config.method.needs_masks() {
-                let name = input
-                    .sequence
-                    .rgb_name(i)
-                    .ok_or_else(|| dynapix::Error::Input(format!("frame {i}: no file name")))?;
-                Some(dynapix_io::images::read_mask(
-                    input.sequence.dir.join("mask").join(name),
-                )?)
-            } else {
-                None
-            };
-            Ok(RgbdFrame {
-                t: input.sequence.frames[i].t,
-                rgb,
-                depth,
-                mask,
-            })
-        })();
-        (images, t0.elapsed().as_secs_f64() * 1e3)
-    };
-    // A frame the reader has already delivered is shown to the push before it, which starts
-    // on its rigidity cue early (`push_before`; the same results).
-    let streamed = input.stream_with_next(2, load, |_, (images, ms), next| -> anyhow::Result<()> {
-        load_ms += ms;
-        let next = next.and_then(|(n, _)| n.as_ref().ok());
-        let pushed = match images {
-            Ok(frame) => online.push_before(frame, next).map_err(anyhow::Error::from),
-            Err(dynapix::Error::Frame(bad)) if input.skip_bad_frames => {
-                tracing::warn!("skipped {bad}");
-                skipped.push(bad);
-                Ok(None)
-            }
-            Err(e) => Err(e.into()),
-        };
-        results.extend(pushed?);
-        bars.event(dynapix::ProgressEvent::Step {
-            task: &label,
-            message: "",
-        });
-        Ok(())
-    });
-    if let Err(e) = streamed {
+    let (run, result) = dynapix::stream::run_online(input, config, masks, bars, &mut |_| {});
+    if let Err(e) = result {
         // Keep what was reported up to the frame that stopped the run.
-        write_online_poses(dir, &results, &skipped)?;
-        record["skipped_frames"] = json!(skipped);
-        bars.event(dynapix::ProgressEvent::End { task: &label });
-        return Err(e);
+        write_online_poses(dir, &run)?;
+        record["skipped_frames"] = json!(run.skipped);
+        return Err(e.into());
     }
-    results.extend(online.finish()?);
-    bars.event(dynapix::ProgressEvent::End { task: &label });
-    let wall = started.elapsed().as_secs_f64();
-    let status = write_online_poses(dir, &results, &skipped)?;
-    let refined = Trajectory::new(
-        online
-            .system()
-            .trajectory()
-            .into_iter()
-            .filter_map(|e| e.pose_wc.map(|p| StampedPose::new(e.timestamp, p)))
-            .collect(),
-    );
-    refined.write_tum(dir.join("trajectory_refined.txt"))?;
+    let n = input.len();
+    let results = &run.results;
+    let status = write_online_poses(dir, &run)?;
+    run.refined.write_tum(dir.join("trajectory_refined.txt"))?;
     let per = |f: &dyn Fn(&dynapix::FrameResult) -> f64| {
         let mut v: Vec<f64> = results.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -612,10 +540,10 @@ fn online_into(
     let mut stats = json!({
         "frames": n,
         "tracked": tracked,
-        "frames_skipped": skipped.len(),
-        "keyframes": online.system().map().num_keyframes(),
-        "map_points": online.system().map().num_points(),
-        "lookahead_frames": online.lookahead(),
+        "frames_skipped": run.skipped.len(),
+        "keyframes": run.keyframes,
+        "map_points": run.map_points,
+        "lookahead_frames": run.lookahead,
         "motion_ms": per(&|r| r.motion_ms),
         "background_ms": per(&|r| r.background_ms),
         "slam_ms": per(&|r| r.slam_ms),
@@ -623,11 +551,12 @@ fn online_into(
         "frame_ms": per(&|r| r.motion_ms + r.slam_ms),
         "next_rigidity_ms": per(&|r| r.next_rigidity_ms),
         "rigidity_ahead_frames": results.iter().filter(|r| r.rigidity_ahead).count(),
-        "image_loading_ms_mean": load_ms / n.max(1) as f64,
-        "wall_seconds": wall,
+        "image_loading_ms_mean": run.load_ms.iter().sum::<f64>() / n.max(1) as f64,
+        "wall_seconds": run.wall_seconds,
+        "masks": masks,
     });
     let ev = evaluate_into(input, dir, &mut stats, true)?;
-    record["skipped_frames"] = json!(skipped);
+    record["skipped_frames"] = json!(run.skipped);
     record["results"] = json!([stats]);
     Ok(RunOutcome {
         trajectory: dir.join("trajectory.txt"),
@@ -637,10 +566,38 @@ fn online_into(
         floor: ev.as_ref().and_then(|r| r.motionless_floor_m),
         earlier_passes: Vec::new(),
         tracked: vec![tracked],
-        skipped: vec![skipped],
+        skipped: vec![run.skipped.clone()],
         prob_dir: None,
         written_trajectory: None,
     })
+}
+
+/// The cache folder of a run on `input`: `given`, else none with `no_cache`, else the
+/// default one ([`dynapix::offline::default_cache_dir`]).
+pub fn cache_for(input: &Input, given: Option<PathBuf>, no_cache: bool) -> Option<PathBuf> {
+    if no_cache {
+        return None;
+    }
+    Some(given.unwrap_or_else(|| {
+        let dir = dynapix::offline::default_cache_dir(&input.sequence.dir);
+        if !dir.starts_with(&input.sequence.dir) {
+            if dynapix::offline::user_cache_is_temporary() {
+                tracing::warn!(
+                    "{} is not writable and neither HOME nor XDG_CACHE_HOME is set: caching \
+                     in {} (pass --cache DIR to keep the cache elsewhere)",
+                    input.sequence.dir.display(),
+                    dir.display()
+                );
+            } else {
+                tracing::info!(
+                    "{} is not writable: caching in {}",
+                    input.sequence.dir.display(),
+                    dir.display()
+                );
+            }
+        }
+        dir
+    }))
 }
 
 /// The configuration of `run`'s flags over the `--config` file.
@@ -680,10 +637,10 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         if args.runs != 1 {
             bail!("--online runs once (the system is deterministic); drop --runs");
         }
-        execute_online(&input, &config, &args.out, bars)?
+        execute_online(&input, &config, args.masks.as_deref(), &args.out, bars)?
     } else {
         let options = RunOptions {
-            cache_dir: args.cache.clone(),
+            cache_dir: cache_for(&input, args.cache.clone(), args.no_cache),
             recompute_maps: args.recompute_prob,
             masks_dir: args.masks.clone(),
             allow_missing_maps: args.allow_missing_prob,

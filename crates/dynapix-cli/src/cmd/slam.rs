@@ -9,7 +9,6 @@
 //! (`dynapix::slam`); this module parses, shows progress and writes files.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::Context;
 use dynapix::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
@@ -90,75 +89,42 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[i.min(v.len() - 1)]
 }
 
-/// Loads the map file `path`, checks it against the camera, ORB pyramid and vocabulary of
-/// the session and switches it to localisation mode; every error names the file. Returns
-/// the summary line "localisation mode, map MAP (N keyframes, M points)".
+/// Loads the map file `path` into the session (localisation mode, [`SlamSession::load_map`])
+/// and returns the summary line "localisation mode, map MAP (N keyframes, M points)".
 fn enter_localization(
     session: &mut SlamSession,
     path: &Path,
     input: &Input,
 ) -> anyhow::Result<String> {
-    let t0 = Instant::now();
-    let bytes = std::fs::read(path).map_err(|source| dynapix_slam::persist::PersistError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let t1 = Instant::now();
-    let saved = dynapix_slam::persist::decode(&bytes)
-        .with_context(|| format!("cannot load map {}", path.display()))?;
-    let system = session.system_mut();
-    let pyramid = system.map().pyramid.clone();
-    saved
-        .check_compatible(
-            system.camera(),
-            input.camera.settings.depth_map_factor,
-            &pyramid,
-            system.vocabulary(),
-        )
-        .with_context(|| format!("cannot use map {} for this run", path.display()))?;
-    let t2 = Instant::now();
+    let l = session.load_map(path, input.camera.settings.depth_map_factor)?;
     let note = format!(
         "localisation mode, map {} ({} keyframes, {} points)",
         path.display(),
-        saved.num_keyframes(),
-        saved.num_points()
+        l.keyframes,
+        l.points
     );
-    let params = system.map().params.clone();
-    system.enter_localization(saved.into_map(params));
-    let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
     eprintln!(
         "{note}: loaded in {:.1} ms (read {:.1}, decode + check {:.1}, rebuild {:.1}; {} bytes)",
-        t0.elapsed().as_secs_f64() * 1e3,
-        ms(t0, t1),
-        ms(t1, t2),
-        t2.elapsed().as_secs_f64() * 1e3,
-        bytes.len()
+        l.read_ms + l.check_ms + l.rebuild_ms,
+        l.read_ms,
+        l.check_ms,
+        l.rebuild_ms,
+        l.bytes
     );
     Ok(note)
 }
 
-/// Encodes the map of the session and writes it atomically to `path`.
+/// Saves the map of the session to `path` ([`SlamSession::save_map`]).
 fn save_map(path: &Path, session: &SlamSession, depth_factor: f64) -> anyhow::Result<()> {
-    let system = session.system();
-    let t0 = Instant::now();
-    let bytes = dynapix_slam::persist::encode(
-        system.map(),
-        system.camera(),
-        depth_factor,
-        system.vocabulary(),
-    )
-    .with_context(|| format!("cannot save map {}", path.display()))?;
-    let t1 = Instant::now();
-    dynapix_io::write_atomic(path, &bytes)
-        .with_context(|| format!("cannot save map {}", path.display()))?;
+    let s = session.save_map(path, depth_factor)?;
     eprintln!(
         "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
         path.display(),
-        system.map().num_keyframes(),
-        system.map().num_points(),
-        bytes.len() as f64 / 1e6,
-        (t1 - t0).as_secs_f64() * 1e3,
-        t1.elapsed().as_secs_f64() * 1e3
+        s.keyframes,
+        s.points,
+        s.bytes as f64 / 1e6,
+        s.encode_ms,
+        s.write_ms
     );
     Ok(())
 }

@@ -1,0 +1,392 @@
+//! Where the maps of a pass live: in memory (computed by this run, in their stored 16-bit
+//! form), in a folder (a cache hit, a sequence's own `prob/`), or both (computed by this run
+//! and written to its cache as a side effect).
+//!
+//! A folder holds one 16-bit PNG per frame, named like the rgb image (`trunc((1 − P)·1000)`,
+//! the reference format), and `motion.json`: `{"sequence", "config", "status", "results"}`.
+//! Maps kept in memory hold the same 16-bit values, so a pass reads the same weights from a
+//! fresh run, a cached run and a run without any folder.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use dynapix_io::weights::read_prob_png_raw;
+use dynapix_io::weights::write_motion_probability;
+use dynapix_io::{Gray16Image, MotionProbability, StaticWeights};
+use rayon::prelude::*;
+use serde_json::{Value, json};
+
+use crate::error::{Error, Result};
+use crate::hash::Fnv64;
+use crate::input::Input;
+
+/// The record file of a map folder.
+pub const RECORD_FILE: &str = "motion.json";
+
+/// A folder of motion maps with its `motion.json`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MapFolder {
+    /// The folder.
+    pub dir: PathBuf,
+}
+
+impl MapFolder {
+    /// The folder `dir`.
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        Self { dir: dir.into() }
+    }
+
+    /// The map file of frame `i` of `input` (`<rgb name>.png`).
+    pub fn map_path(&self, input: &Input, i: usize) -> Option<PathBuf> {
+        Some(self.dir.join(input.map_name(i)?))
+    }
+
+    /// The record, when the folder has one.
+    pub fn read_record(&self) -> Option<Result<Value>> {
+        let path = self.dir.join(RECORD_FILE);
+        let text = std::fs::read_to_string(&path).ok()?;
+        Some(
+            serde_json::from_str(&text)
+                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
+        )
+    }
+
+    /// Writes the record atomically; a `complete` one lists every map file with its size and
+    /// checksum ([`MapFolder::file_checksums`]).
+    pub fn write_record(
+        &self,
+        input: &Input,
+        config: &Value,
+        status: &str,
+        results: Value,
+    ) -> Result<()> {
+        std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
+        let mut doc = json!({
+            "sequence": input.sequence.dir,
+            "config": config,
+            "status": status,
+            "results": results,
+        });
+        if status == "complete" {
+            doc["files"] = self.file_checksums(input)?;
+        }
+        let text = serde_json::to_string_pretty(&doc)
+            .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
+        dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
+        Ok(())
+    }
+
+    /// The cache folder `<root>/<prefix>-<key>` of the maps that `config` (their record's
+    /// `config` document) describes, its key, and whether it already holds them complete.
+    pub fn in_cache(
+        root: &Path,
+        prefix: &str,
+        input: &Input,
+        config: &Value,
+    ) -> (Self, String, bool) {
+        let key = Fnv64::of(config.to_string().as_bytes());
+        let folder = Self::new(root.join(format!("{prefix}-{key}")));
+        let reused = match folder.check_cache(input, config) {
+            CacheCheck::Valid => true,
+            CacheCheck::Absent => false,
+            CacheCheck::Damaged(why) => {
+                tracing::warn!(
+                    "the cached maps in {} are damaged ({why}); recomputing them",
+                    folder.dir.display()
+                );
+                false
+            }
+        };
+        (folder, key, reused)
+    }
+
+    /// True when the record says `config`, the run completed, and every frame's map is the
+    /// file that was recorded ([`MapFolder::check_cache`]).
+    pub fn is_complete(&self, input: &Input, config: &Value) -> bool {
+        self.check_cache(input, config) == CacheCheck::Valid
+    }
+
+    /// Size and FNV-64 checksum of every frame's map file (bad frames of a run that skips
+    /// them have none), by file name: `{"<name>.png": {"bytes": n, "fnv64": "…"}}`.
+    pub fn file_checksums(&self, input: &Input) -> Result<Value> {
+        let files = (0..input.len())
+            .into_par_iter()
+            .filter(|&i| !input.is_bad(i))
+            .map(|i| {
+                let path = self
+                    .map_path(input, i)
+                    .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+                let bytes = std::fs::read(&path).map_err(|e| dynapix_io::IoError::io(&path, e))?;
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                Ok((name, file_fingerprint(&bytes)))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Value::Object(files.into_iter().collect()))
+    }
+
+    /// Whether this folder holds the complete maps of `config`: its record says `config` and
+    /// `complete`, and every frame's map has the size and checksum the record lists.
+    pub fn check_cache(&self, input: &Input, config: &Value) -> CacheCheck {
+        let rec = match self.read_record() {
+            None => return CacheCheck::Absent,
+            Some(Err(e)) => return CacheCheck::Damaged(e.to_string()),
+            Some(Ok(rec)) => rec,
+        };
+        if rec.get("config") != Some(&as_read_back(config)) {
+            return CacheCheck::Damaged(format!(
+                "{} describes other maps than its key",
+                self.dir.join(RECORD_FILE).display()
+            ));
+        }
+        if rec.get("status").and_then(Value::as_str) != Some("complete") {
+            // An interrupted computation: not damage, just unfinished.
+            return CacheCheck::Absent;
+        }
+        let Some(files) = rec.get("files").and_then(Value::as_object) else {
+            return CacheCheck::Damaged(format!(
+                "{} lists no checksums (written by an older version)",
+                self.dir.join(RECORD_FILE).display()
+            ));
+        };
+        let problem = (0..input.len())
+            .into_par_iter()
+            .filter(|&i| !input.is_bad(i))
+            .filter_map(|i| {
+                let path = self.map_path(input, i)?;
+                let name = path.file_name()?.to_string_lossy().into_owned();
+                let Some(expected) = files.get(&name) else {
+                    return Some((i, format!("{}: not in the record", path.display())));
+                };
+                match std::fs::read(&path) {
+                    Err(e) => Some((i, format!("{}: {e}", path.display()))),
+                    Ok(bytes) if &file_fingerprint(&bytes) != expected => Some((
+                        i,
+                        format!(
+                            "{}: {} bytes, not the {} bytes with the checksum the record lists",
+                            path.display(),
+                            bytes.len(),
+                            expected.get("bytes").unwrap_or(&Value::Null)
+                        ),
+                    )),
+                    Ok(_) => None,
+                }
+            })
+            .min_by_key(|(i, _)| *i);
+        match problem {
+            Some((_, why)) => CacheCheck::Damaged(why),
+            None => CacheCheck::Valid,
+        }
+    }
+
+    /// Writes the map of one frame atomically.
+    pub fn write_map(&self, input: &Input, i: usize, p: &MotionProbability) -> Result<()> {
+        let path = self
+            .map_path(input, i)
+            .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+        let _stage = tracing::info_span!(target: "dynapix::stage", "write maps").entered();
+        write_motion_probability(path, p)?;
+        Ok(())
+    }
+
+    /// The stored form of frame `i`'s map, `None` when its file does not exist.
+    pub fn read_map(&self, input: &Input, i: usize) -> Result<Option<Gray16Image>> {
+        let path = self
+            .map_path(input, i)
+            .ok_or_else(|| Error::Input(format!("frame {i} has no file name")))?;
+        if !path.exists() {
+            return Ok(None);
+        }
+        read_map_file(&path).map(Some)
+    }
+}
+
+/// Reads one map file of a folder (its stored 16-bit values).
+fn read_map_file(path: &Path) -> Result<Gray16Image> {
+    let _stage = tracing::info_span!(target: "dynapix::stage", "read maps").entered();
+    Ok(read_prob_png_raw(path)?)
+}
+
+/// What [`MapFolder::check_cache`] found.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum CacheCheck {
+    /// No maps of this job yet (no record, or an interrupted computation).
+    Absent,
+    /// The record and every map file match: the folder can be used as it is.
+    Valid,
+    /// A complete record whose files (or the record itself) do not match; why.
+    Damaged(String),
+}
+
+/// Size and FNV-64 checksum of a file's bytes, as recorded in a cache record.
+pub fn file_fingerprint(bytes: &[u8]) -> Value {
+    json!({"bytes": bytes.len(), "fnv64": Fnv64::of(bytes)})
+}
+/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
+/// the last place away from the value that was written, so a record read from a file is
+/// compared with the expected record after the same round trip.
+pub fn as_read_back(v: &Value) -> Value {
+    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
+}
+
+/// The maps of a sequence kept in memory, frame by frame, in their stored 16-bit form
+/// (`None`: no map, e.g. a skipped bad frame).
+pub type MemoryMaps = Arc<[Option<Gray16Image>]>;
+
+/// The stored 16-bit form of `p` (the quantisation of the map files); a NaN probability is
+/// refused like the file writer refuses it, so a run with and without a cache fail alike.
+pub fn stored_map(p: &MotionProbability, i: usize) -> Result<Gray16Image> {
+    if p.as_image().as_raw().iter().any(|v| v.is_nan()) {
+        return Err(Error::Input(format!(
+            "motion map of frame {i} has a NaN probability"
+        )));
+    }
+    Ok(p.to_stored())
+}
+
+/// Where the maps of a pass came from, what made them, and where they are.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapSet {
+    /// The folder of the maps, when they are on disk.
+    pub folder: Option<MapFolder>,
+    /// The maps in memory, when this run computed them.
+    pub memory: Option<MemoryMaps>,
+    /// Provenance (written into `run.json`).
+    pub record: Value,
+    /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
+    /// a record).
+    pub ground_truth: Option<bool>,
+}
+
+impl MapSet {
+    /// The maps of a folder made elsewhere (a sequence's own `prob/`): provenance from its
+    /// `motion.json` when it has one.
+    pub fn existing(folder: MapFolder, source: &str) -> Result<Self> {
+        let mut record = json!({"source": source, "dir": folder.dir});
+        let ground_truth = match folder.read_record() {
+            None => {
+                record["provenance"] = json!("unknown: no motion.json beside the maps");
+                None
+            }
+            Some(Err(e)) => return Err(e),
+            Some(Ok(rec)) => {
+                let gt = record_uses_ground_truth(&rec);
+                record["poses"] = json!(match gt {
+                    Some(true) => "ground truth",
+                    Some(false) => "not ground truth",
+                    None => "unknown",
+                });
+                record["motion_json"] = rec;
+                gt
+            }
+        };
+        Ok(Self {
+            folder: Some(folder),
+            memory: None,
+            record,
+            ground_truth,
+        })
+    }
+
+    /// The folder of the maps, when they are on disk.
+    pub fn dir(&self) -> Option<&Path> {
+        self.folder.as_ref().map(|f| f.dir.as_path())
+    }
+
+    /// The stored 16-bit map of frame `i` of `input`: from memory when this run computed
+    /// it, else from the folder; `None` when the set has no map for the frame.
+    pub fn stored(&self, input: &Input, i: usize) -> Result<Option<Gray16Image>> {
+        if let Some(m) = &self.memory {
+            return Ok(m.get(i).cloned().flatten());
+        }
+        match &self.folder {
+            Some(f) => f.read_map(input, i),
+            None => Ok(None),
+        }
+    }
+
+    /// The static weights of frame `i` (w = stored/1000), `None` when the set has none.
+    pub fn static_weights(&self, input: &Input, i: usize) -> Result<Option<StaticWeights>> {
+        Ok(self
+            .stored(input, i)?
+            .map(|s| StaticWeights::from_stored(&s)))
+    }
+
+    /// The motion probability of frame `i` (P = 1 − stored/1000), or an error naming the
+    /// frame when the set has none.
+    pub fn probability(&self, input: &Input, i: usize) -> Result<MotionProbability> {
+        match self.stored(input, i)? {
+            Some(s) => Ok(MotionProbability::from_stored(&s)),
+            None => Err(self.missing(input, i)),
+        }
+    }
+
+    /// The error of a frame without a map.
+    pub fn missing(&self, input: &Input, i: usize) -> Error {
+        match self.folder.as_ref().and_then(|f| f.map_path(input, i)) {
+            Some(p) => Error::file(p, "no such map (motion map missing)"),
+            None => Error::Input(format!("frame {i} has no motion map")),
+        }
+    }
+}
+
+/// Whether a `motion.json` record says its maps were made with ground-truth poses
+/// (`None` when it does not say).
+pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
+    let poses = rec.pointer("/config/poses")?;
+    if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
+        return Some(src == "ground_truth");
+    }
+    // Records written before provenance was structured: `"source": "gt" | "file"`.
+    match poses.get("source").and_then(Value::as_str)? {
+        "gt" => Some(true),
+        "file" => Some(false),
+        _ => None,
+    }
+}
+
+/// Collects the maps of a computation frame by frame (from any thread): into memory, and
+/// into a folder when one is given (the cache as a side effect, written as they come).
+pub(crate) struct MapSink<'a> {
+    input: &'a Input,
+    folder: Option<&'a MapFolder>,
+    maps: std::sync::Mutex<Vec<Option<Gray16Image>>>,
+}
+
+impl<'a> MapSink<'a> {
+    /// A sink for the frames of `input`, writing into `folder` when given.
+    pub(crate) fn new(input: &'a Input, folder: Option<&'a MapFolder>) -> Self {
+        Self {
+            input,
+            folder,
+            maps: std::sync::Mutex::new(vec![None; input.len()]),
+        }
+    }
+
+    /// Keeps the map of frame `i` (and writes it to the folder).
+    pub(crate) fn put(&self, i: usize, p: &MotionProbability) -> Result<()> {
+        if let Some(f) = self.folder {
+            f.write_map(self.input, i, p)?;
+        }
+        let stored = stored_map(p, i)?;
+        let mut maps = self
+            .maps
+            .lock()
+            .map_err(|_| Error::Input("motion maps: a worker thread panicked".into()))?;
+        match maps.get_mut(i) {
+            Some(slot) => *slot = Some(stored),
+            None => return Err(Error::Input(format!("motion maps: no frame {i}"))),
+        }
+        Ok(())
+    }
+
+    /// The maps kept.
+    pub(crate) fn finish(self) -> MemoryMaps {
+        self.maps
+            .into_inner()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .into()
+    }
+}
