@@ -2,10 +2,8 @@
 # The tests and gates, exactly what CI runs (`.ci/run` calls this script):
 # formatting, clippy with warnings as errors, rustdoc with warnings as errors, the
 # unused-dependency check, then the whole test suite.
-#
-# Not yet gates (other branches are fixing the files they list; the integrator enables them):
-#   python3 scripts/check-cycles.py      # import cycles between the files of a crate
-#   python3 scripts/check-file-size.py   # files with over 800 lines of non-test code
+# the import-cycle and file-size checks, then the whole Rust test suite, then the Python
+# package's tests (scripts/test-python.sh: builds the package into a virtual environment).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -19,5 +17,11 @@ step "cargo doc --workspace --no-deps (warnings are errors)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --release
 step "python3 scripts/check-unused-deps.py"
 python3 scripts/check-unused-deps.py
+step "python3 scripts/check-cycles.py"
+python3 scripts/check-cycles.py
+step "python3 scripts/check-file-size.py"
+python3 scripts/check-file-size.py
 step "cargo test --workspace --release"
 cargo test --workspace --release
+step "scripts/test-python.sh"
+bash scripts/test-python.sh

@@ -76,7 +76,7 @@ pub enum Error {
         "the first pass tracked no frame: no poses for the motion maps (all-zero depth, black \
          or featureless frames, or a camera that does not match the images?)"
     )]
-    NothingTracked(Box<crate::offline::FirstPassResult>),
+    NothingTracked(Box<crate::pass::FirstPassResult>),
     /// A file that is not one of the formats above (`motion.json`, run records).
     #[error("{}: {message}", path.display())]
     File {

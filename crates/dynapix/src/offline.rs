@@ -24,6 +24,7 @@
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
 //! write.
 
+pub use crate::pass::FirstPassResult;
 use std::path::{Path, PathBuf};
 
 use dynapix_io::Trajectory;
@@ -225,17 +226,6 @@ fn read_cached_first_pass(dir: &Path, doc: &Value) -> Option<Trajectory> {
             None
         }
     }
-}
-
-/// The first pass's trajectory (as its `trajectory.txt` reads back) and where it came from.
-#[derive(Clone, Debug)]
-pub struct FirstPassResult {
-    /// The trajectory.
-    pub trajectory: Trajectory,
-    /// The full pass output when it was run now.
-    pub output: Option<PassOutput>,
-    /// Provenance (`computed`, `cache`, `given`) for the run record.
-    pub record: Value,
 }
 
 /// What an offline run produced.

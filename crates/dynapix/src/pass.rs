@@ -103,3 +103,14 @@ pub struct PassOutput {
     /// Frames skipped because their files cannot be used, in order.
     pub skipped: Vec<BadFrame>,
 }
+
+/// The first pass's trajectory (as its `trajectory.txt` reads back) and where it came from.
+#[derive(Clone, Debug)]
+pub struct FirstPassResult {
+    /// The trajectory.
+    pub trajectory: Trajectory,
+    /// The full pass output when it was run now.
+    pub output: Option<PassOutput>,
+    /// Provenance (`computed`, `cache`, `given`) for the run record.
+    pub record: serde_json::Value,
+}
