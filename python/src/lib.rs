@@ -4,7 +4,7 @@
 //! `evo` conversion) is `python/dynapix/__init__.py`.
 //!
 //! Rules of the boundary: every library error becomes a Python exception of the
-//! [`errors`] hierarchy carrying the library's message; a panic inside the library is caught
+//! `errors` hierarchy carrying the library's message; a panic inside the library is caught
 //! and raised as `DynapixError` too; long computations release the GIL (`Python::detach`);
 //! arrays are checked for dtype, shape and size with messages that name them.
 

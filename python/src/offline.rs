@@ -372,8 +372,11 @@ pub fn run(
 ) -> PyResult<RunResult> {
     let config = config_arg(config)?;
     let input = open_input(py, &seq_dir, &config, camera, association.as_deref())?;
+    // As `dynapix run`: without a folder given, the sequence's own cache (or one under the
+    // user cache directory when the sequence may not be written).
+    let cache = cache.unwrap_or_else(|| dynapix::offline::default_cache_dir(&input.sequence.dir));
     let options = RunOptions {
-        cache_dir: cache,
+        cache_dir: Some(cache),
         recompute_maps,
         masks_dir: masks,
         allow_missing_maps,

@@ -1,6 +1,6 @@
 //! Trajectory evaluation as `dynapix eval` and `dynapix run` compute it (ATE after Horn or
 //! Umeyama alignment, RPE, tracking rate, motionless floor), from files or from poses in
-//! memory, with the library's [`Error`](crate::Error): the entry point of bindings that
+//! memory, with the library's [`Error`]: the entry point of bindings that
 //! should not reach into `dynapix-eval` themselves.
 
 use std::path::Path;

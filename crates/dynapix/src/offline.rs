@@ -126,7 +126,7 @@ pub fn check_cache_dir(dir: &Path) -> Result<()> {
 }
 
 /// Whether `dir` may be written by this process and is not marked read-only (see
-/// [`writable`]): a sequence folder that is not is never written into.
+/// `writable`): a sequence folder that is not is never written into.
 pub fn folder_writable(dir: &Path) -> bool {
     writable(dir)
 }
