@@ -4,6 +4,8 @@
 //! the maps changes, and maps made with ground-truth poses are reported as such.
 //! Run in release mode (`cargo test --release`).
 
+mod common;
+use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -57,26 +59,6 @@ fn camera_only(into: &Path) -> PathBuf {
         std::fs::remove_dir_all(dst.join(d)).unwrap();
     }
     dst
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        let to = dst.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &to);
-        } else {
-            std::fs::copy(e.path(), to).unwrap();
-        }
-    }
-}
-
-fn ate(seq: &Path, traj: &Trajectory) -> f64 {
-    let gt = dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt")).unwrap();
-    let est: Vec<_> = traj.poses.iter().map(|p| (p.t, p.pose)).collect();
-    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default()).unwrap();
-    ev.ate.stats.rmse
 }
 
 fn open(dir: &Path, config: &Config) -> Input {

@@ -5,6 +5,8 @@
 //! pass tracks about as well as on the clean sequence, offline and online.
 //! Run in release mode (`cargo test --release`).
 
+mod common;
+use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 
 use dynapix::offline::{OfflineRunner, RunOptions};
@@ -48,26 +50,6 @@ fn sequences(tmp: &Path) -> (PathBuf, PathBuf) {
         dynapix_io::images::write_gray16(path, &full).unwrap();
     }
     (clean, sat)
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        let to = dst.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &to);
-        } else {
-            std::fs::copy(e.path(), to).unwrap();
-        }
-    }
-}
-
-fn ate(seq: &Path, traj: &Trajectory) -> f64 {
-    let gt = dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt")).unwrap();
-    let est: Vec<_> = traj.poses.iter().map(|p| (p.t, p.pose)).collect();
-    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default()).unwrap();
-    ev.ate.stats.rmse
 }
 
 /// ATE and tracking rate of the final offline pass, and the frames read with invalid depth.
