@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use dynapix::{Camera as LibCamera, CameraChoice, CameraPreset, CameraSource, SequenceConfig};
-use dynapix_io::Settings;
+use dynapix::Settings;
 use pyo3::prelude::*;
 use pyo3::types::PyString;
 

@@ -171,9 +171,9 @@ pub fn save_trajectory(
         }
         (None, None) => arrays::stamped_poses(timestamps, "trajectory")?,
     };
-    let t = dynapix_io::Trajectory::new(
+    let t = dynapix::Trajectory::new(
         v.into_iter()
-            .map(|(t, p)| dynapix_io::StampedPose::new(t, p))
+            .map(|(t, p)| dynapix::StampedPose::new(t, p))
             .collect(),
     );
     compute(py, move || Ok(t.write_tum(&path)?))

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Input, Progress, ProgressEvent};
-use dynapix_io::{FrameStatus, Trajectory};
+use dynapix::{FrameStatus, Trajectory};
 use numpy::{PyArray1, PyArray3};
 use pyo3::prelude::*;
 use serde_json::{Value, json};
@@ -125,8 +125,7 @@ impl Sequence {
         let (rgb, depth) = compute(py, move || {
             let (rgb, depth) = input.load_rgbd(i)?;
             let raw = if raw_depth {
-                let path = &input.sequence.info(i)?.depth;
-                Some(dynapix_io::images::read_depth_raw(path)?)
+                Some(input.load_depth_raw(i)?)
             } else {
                 None
             };
@@ -202,7 +201,7 @@ pub struct RunResult {
     status: Vec<(f64, FrameStatus)>,
     passes: Vec<Value>,
     first_pass: Option<Trajectory>,
-    record: Value,
+    record: dynapix::RunRecord,
     maps_dir: Option<PathBuf>,
     map_paths: Vec<Option<PathBuf>>,
     frame_stamps: Vec<f64>,
@@ -330,7 +329,10 @@ impl RunResult {
                 compute(py, move || dynapix::evaluate::read_ground_truth(&p))?
             }
         };
-        let written = guard(|| dynapix::poses::as_written(&self.trajectory))?;
+        let written = guard(|| Ok(dynapix::Trajectory::parse_tum(
+            &self.trajectory.to_tum_string(),
+            std::path::Path::new("<trajectory>"),
+        )?))?;
         let est: Vec<_> = written.poses.iter().map(|p| (p.t, p.pose)).collect();
         let args = EvalArgs::new(sim3, rpe_seconds, rpe_frames, max_diff)?;
         evaluation::report(py, gt, est, Some(self.frame_stamps.clone()), args)
@@ -374,7 +376,7 @@ pub fn run(
     let input = open_input(py, &seq_dir, &config, camera, association.as_deref())?;
     // As `dynapix run`: without a folder given, the sequence's own cache (or one under the
     // user cache directory when the sequence may not be written).
-    let cache = cache.unwrap_or_else(|| dynapix::offline::default_cache_dir(&input.sequence.dir));
+    let cache = cache.unwrap_or_else(|| dynapix::RunOptions::default_cache_dir(&input.sequence.dir));
     let options = RunOptions {
         cache_dir: Some(cache),
         recompute_maps,
@@ -390,7 +392,7 @@ pub fn run(
             .final_pass()
             .ok_or_else(|| dynapix::Error::Input("the run produced no pass".into()))?;
         let mut record = out.record.clone();
-        record["seed"] = json!(config.slam.seed);
+        record.seed = Some(config.slam.seed);
         let maps = out.final_maps();
         Ok(RunResult {
             trajectory: last.trajectory.clone(),
@@ -416,7 +418,7 @@ pub fn run(
 #[pyfunction]
 pub fn read_probability(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
     let p = compute(py, move || {
-        Ok(dynapix_io::weights::read_motion_probability(&path)?.into_image())
+        Ok(dynapix::stages::MapFolder::read_probability(&path)?.into_image())
     })?;
     let (w, h) = p.dimensions();
     arrays::image_array(py, p.into_raw(), w, h, 0)

@@ -50,7 +50,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     // Before any thread starts: keep freed frame buffers for reuse instead of faulting their
     // pages in again for every frame (see the function's documentation).
-    dynapix::profile::retain_freed_memory();
+    dynapix::bench::retain_freed_memory();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "warn",
@@ -60,7 +60,7 @@ fn main() -> std::process::ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     // The stage profiler only measures between start and stop (`dynapix bench`).
-    let profiler = dynapix::profile::StageProfiler::new();
+    let profiler = dynapix::bench::StageProfiler::new();
     {
         use tracing_subscriber::Layer;
         use tracing_subscriber::layer::SubscriberExt;

@@ -33,8 +33,20 @@ fn tracked_lines(p: &Path) -> usize {
         .count()
 }
 
+/// The `run.json` of `out`, checked to round-trip through its record type: it deserialises
+/// into `dynapix::RunRecord` and serialises back to the same JSON value.
 fn run_json(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap()
+    let text = std::fs::read_to_string(out.join("run.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let rec: dynapix::RunRecord = serde_json::from_str(&text)
+        .unwrap_or_else(|e| panic!("{}/run.json is no RunRecord: {e}", out.display()));
+    assert_eq!(
+        serde_json::to_value(&rec).unwrap(),
+        v,
+        "{}/run.json does not round-trip",
+        out.display()
+    );
+    v
 }
 
 /// Writes `prob/<name>` from the synth masks: P = 1 where the mask marks a mover.
@@ -174,6 +186,14 @@ fn dynapix_computes_missing_maps_without_ground_truth() {
         })
         .count();
     assert_eq!(n, 30, "one map per frame in {}", prob.display());
+    // The cache's motion.json round-trips through its record type, complete, every map listed.
+    let text = std::fs::read_to_string(prob.join("motion.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let rec: dynapix::MotionRecord = serde_json::from_str(&text).unwrap();
+    assert_eq!(serde_json::to_value(&rec).unwrap(), v);
+    assert_eq!(rec.status, dynapix::MapsStatus::Complete);
+    assert_eq!(rec.files.as_ref().map(|f| f.len()), Some(30));
+    assert_eq!(rec.uses_ground_truth(), Some(false));
     assert!(
         !seq.join("prob").exists(),
         "the sequence's own prob/ is untouched"

@@ -10,7 +10,7 @@
 
 use std::process::ExitCode;
 
-use dynapix::stream::run_online;
+use dynapix::run_online;
 use dynapix::{CameraChoice, Config, FrameResult, Input, NoProgress};
 
 fn usage() -> ExitCode {

@@ -27,6 +27,7 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 
 use crate::error::{Error, Result};
+use crate::record::MapsStatus;
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
@@ -390,7 +391,7 @@ fn compute_rigidity(
 ) -> Result<crate::store::MemoryMaps> {
     let _phase = tracing::info_span!(target: "dynapix::phase", "rigidity maps").entered();
     if let Some(f) = folder {
-        f.write_record(job.input, config, "running", Value::Null)?;
+        f.write_record(job.input, config, MapsStatus::Running, Value::Null)?;
     }
     let started = std::time::Instant::now();
     let sink = MapSink::new(job.input, folder);
@@ -401,7 +402,7 @@ fn compute_rigidity(
         f.write_record(
             job.input,
             config,
-            "complete",
+            MapsStatus::Complete,
             json!({
                 "frames_computed": job.input.len() - job.input.bad_frames().len(),
                 "seconds": started.elapsed().as_secs_f64(),

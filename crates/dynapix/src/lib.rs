@@ -59,41 +59,48 @@
 #![deny(missing_docs)]
 
 pub mod bench;
-pub mod combine;
-pub mod config;
-pub mod cues;
-pub mod error;
 pub mod evaluate;
-pub mod hash;
-pub mod input;
-pub mod maps;
-pub mod method;
-pub mod offline;
-pub mod online;
-pub mod pass;
-pub mod poses;
-pub mod profile;
-pub mod progress;
-pub mod slam;
-pub mod store;
-pub mod stream;
+pub mod stages;
 pub mod synthetic;
 
-pub use bench::{BenchReport, bench_offline, bench_online};
+mod combine;
+mod config;
+mod cues;
+mod error;
+mod hash;
+mod input;
+mod maps;
+mod method;
+mod offline;
+mod online;
+mod pass;
+mod poses;
+mod profile;
+mod progress;
+mod record;
+mod slam;
+mod store;
+mod stream;
+
 pub use config::{
-    BackgroundSource, Config, Cue, Cues, FirstPass, FlowPreset, MotionConfig, OnlineConfig,
-    PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
+    BackgroundSource, Config, Cue, Cues, DynaPixConfig, FirstPass, FlowPreset, MotionConfig,
+    OnlineConfig, PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
-pub use dynapix_io::{MotionProbability, Pairing, Sequence, StaticWeights, Trajectory};
+pub use dynapix_io::{
+    FrameList, FrameStatus, MotionProbability, Pairing, Sequence, Settings, StampedPose,
+    StampedStatus, StaticWeights, Trajectory,
+};
 /// The per-map-point probability update rule of the SLAM weighting (EMA, max, latest).
 pub use dynapix_slam::weighting::ProbUpdate;
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
-pub use maps::{CacheCheck, FrameMaps, MapFolder, MapJob, MapSet};
 pub use method::{Method, Mode, Terms};
-pub use offline::{OfflineOutput, OfflineRunner, RunOptions};
+pub use offline::{FirstPassResult, OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
-pub use poses::{FramePoses, PoseOrigin};
+pub use pass::{FrameTiming, PassOutput, PassStats};
 pub use progress::{NoProgress, Progress, ProgressEvent};
-pub use slam::{PassOutput, PassStats, SlamSession};
-pub use stream::{OnlineRun, run_online};
+pub use record::{
+    CameraRecord, FileFingerprint, GroundTruthRecord, MapsStatus, MotionRecord, OrbRecord,
+    PassRecord, RunRecord, SequenceRecord, WeightingRecord,
+};
+pub use stream::{OnlineRun, online_masks, run_online};

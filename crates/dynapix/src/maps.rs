@@ -31,15 +31,13 @@ use crate::combine::FrameCues;
 use crate::config::{Config, Cues, FlowPreset};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
+use crate::record::MapsStatus;
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
 use crate::store::MapSink;
-pub use crate::store::{
-    CacheCheck, MapFolder, MapSet, RECORD_FILE, as_read_back, file_fingerprint,
-    record_uses_ground_truth,
-};
+pub use crate::store::{CacheCheck, MapFolder, MapSet, as_read_back};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
@@ -515,7 +513,7 @@ fn compute_maps(
     let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
     if let Some(f) = folder {
-        f.write_record(job.input, config, "running", Value::Null)?;
+        f.write_record(job.input, config, MapsStatus::Running, Value::Null)?;
     }
     let sink = MapSink::new(job.input, folder);
     let all: Vec<usize> = (0..n).filter(|&i| !job.input.is_bad(i)).collect();
@@ -533,7 +531,7 @@ fn compute_maps(
         f.write_record(
             job.input,
             config,
-            "complete",
+            MapsStatus::Complete,
             json!({
                 "frames_computed": stats.frames,
                 "compute_seconds": stats.compute_seconds,

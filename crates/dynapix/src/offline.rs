@@ -35,7 +35,8 @@ use crate::cues::{RigidityJob, cached_rigidity};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
-use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps, file_fingerprint};
+use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
+use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
 use crate::method::{Method, Terms};
 use crate::poses::{FramePoses, PoseOrigin, as_written};
 use crate::progress::Progress;
@@ -51,7 +52,7 @@ pub struct RunOptions {
     /// Cache of first passes and motion maps: what is found there is reused, what is
     /// computed is written there as a side effect. `None`: no cache, nothing is written
     /// (everything is computed in memory). Callers that want the usual place give
-    /// [`default_cache_dir`] (`<sequence>/dynapix_cache`, or a folder under the user's cache
+    /// [`RunOptions::default_cache_dir`] (`<sequence>/dynapix_cache`, or a folder under the user's cache
     /// directory when the sequence folder cannot be written).
     pub cache_dir: Option<PathBuf>,
     /// Ignore the sequence's own `prob/` folder and compute the maps.
@@ -66,11 +67,25 @@ pub struct RunOptions {
     pub first_pass: Option<Trajectory>,
 }
 
+impl RunOptions {
+    /// The usual cache folder of the sequence folder `seq_dir`: `<seq_dir>/dynapix_cache` when
+    /// it can be written, else a folder under the user's cache directory.
+    pub fn default_cache_dir(seq_dir: &Path) -> PathBuf {
+        default_cache_dir(seq_dir)
+    }
+
+    /// True when the user's cache directory is the temporary directory (no `HOME` nor
+    /// `XDG_CACHE_HOME`), so a default cache outside the sequence folder does not last.
+    pub fn user_cache_is_temporary() -> bool {
+        user_cache_is_temporary()
+    }
+}
+
 /// The default cache of the sequence in `seq_dir`: `<seq_dir>/dynapix_cache` when it (or, before
 /// it exists, `seq_dir`) can be written, else `dynapix/<folder name>-<hash of its path>` under
 /// the user's cache directory (`$XDG_CACHE_HOME`, else `$HOME/.cache`, else the temporary
 /// directory), so read-only datasets need no `--cache`.
-pub fn default_cache_dir(seq_dir: &Path) -> PathBuf {
+pub(crate) fn default_cache_dir(seq_dir: &Path) -> PathBuf {
     cache_dir_for(seq_dir, writable, &user_cache_root())
 }
 
@@ -109,13 +124,13 @@ fn user_cache_root() -> PathBuf {
 
 /// True when the user's cache directory is the temporary directory (no `HOME` nor
 /// `XDG_CACHE_HOME`).
-pub fn user_cache_is_temporary() -> bool {
+pub(crate) fn user_cache_is_temporary() -> bool {
     user_cache_root() == std::env::temp_dir()
 }
 
 /// Checks, before any work, that the cache folder `dir` can be written (created when
 /// missing), so an unwritable cache stops a run before it starts, not after its first pass.
-pub fn check_cache_dir(dir: &Path) -> Result<()> {
+pub(crate) fn check_cache_dir(dir: &Path) -> Result<()> {
     dynapix_io::output::check_writable_dir(dir).map_err(|e| {
         Error::Input(format!(
             "the cache {} cannot be used: {}; pass --cache DIR with a writable folder",
@@ -166,7 +181,7 @@ fn write_first_pass_cache(dir: &Path, doc: &Value, out: &PassOutput) -> Result<(
         "status": "complete",
         "stats": out.stats,
         "poses": out.trajectory.len(),
-        "trajectory": file_fingerprint(&bytes),
+        "trajectory": FileFingerprint::of(&bytes),
     });
     dynapix_io::write_atomic(dir.join("pass.json"), rec.to_string().as_bytes())?;
     Ok(())
@@ -199,14 +214,16 @@ fn read_cached_first_pass(dir: &Path, doc: &Value) -> Option<Trajectory> {
                 rec_path.display()
             ));
         };
+        let expected: FileFingerprint = serde_json::from_value(expected.clone())
+            .map_err(|e| format!("{}: {e}", rec_path.display()))?;
         let bytes =
             std::fs::read(&traj_path).map_err(|e| format!("{}: {e}", traj_path.display()))?;
-        if &file_fingerprint(&bytes) != expected {
+        if FileFingerprint::of(&bytes) != expected {
             return Err(format!(
                 "{}: {} bytes, not the {} bytes with the checksum the record lists",
                 traj_path.display(),
                 bytes.len(),
-                expected.get("bytes").unwrap_or(&Value::Null)
+                expected.bytes
             ));
         }
         let t = Trajectory::read_tum(&traj_path).map_err(|e| e.to_string())?;
@@ -238,7 +255,7 @@ pub struct OfflineOutput {
     /// The passes: the weighted passes in order, or the single ORB-SLAM2 pass.
     pub passes: Vec<PassOutput>,
     /// The provenance record of the run (the body of `run.json`, without results).
-    pub record: Value,
+    pub record: RunRecord,
 }
 
 impl OfflineOutput {
@@ -256,7 +273,9 @@ impl OfflineOutput {
 /// Runs one method offline on one sequence.
 pub struct OfflineRunner<'a> {
     config: &'a Config,
-    input: &'a Input,
+    /// The input of this runner, with a decoded-frame cache of its own ([`Input::for_run`]):
+    /// runners that share an input (`experiment --jobs`) never switch each other's cache.
+    input: Input,
     options: RunOptions,
     /// The rigidity maps, once computed or found (they need no poses: one set per runner).
     rigidity: std::sync::OnceLock<MapSet>,
@@ -278,7 +297,7 @@ impl<'a> OfflineRunner<'a> {
         }
         let r = Self {
             config,
-            input,
+            input: input.for_run(),
             options,
             rigidity: std::sync::OnceLock::new(),
             first: std::sync::OnceLock::new(),
@@ -339,7 +358,7 @@ impl<'a> OfflineRunner<'a> {
         };
         let masks = method.needs_masks().then(|| self.masks_dir());
         run_pass(
-            self.input,
+            &self.input,
             &mut session,
             weights,
             masks.as_deref(),
@@ -361,7 +380,7 @@ impl<'a> OfflineRunner<'a> {
             return Ok(Some(m.clone()));
         }
         let _ = self.input.bad_frames();
-        let job = RigidityJob::new(self.input, c.motion.rigidity.clone());
+        let job = RigidityJob::new(&self.input, c.motion.rigidity.clone());
         let maps = cached_rigidity(&job, self.cache_dir(), "rigidity maps", progress)?;
         Ok(Some(self.rigidity.get_or_init(|| maps).clone()))
     }
@@ -373,7 +392,7 @@ impl<'a> OfflineRunner<'a> {
             FirstPass::Orbslam2 => (c.orbslam2_params(), Value::Null),
             FirstPass::Rigidity => (
                 c.system_params(),
-                RigidityJob::new(self.input, c.motion.rigidity.clone()).record(),
+                RigidityJob::new(&self.input, c.motion.rigidity.clone()).record(),
             ),
         };
         let mut r = json!({
@@ -465,7 +484,7 @@ impl<'a> OfflineRunner<'a> {
     fn poses_for(&self, k: usize, previous: Option<&Trajectory>) -> Result<FramePoses> {
         let stamps = self.input.timestamps();
         let gap = self.config.motion.max_pose_gap;
-        if !MapJob::needs_poses(self.input, self.config) {
+        if !MapJob::needs_poses(&self.input, self.config) {
             return Ok(FramePoses::unused(stamps.len()));
         }
         match &self.config.motion.poses {
@@ -505,7 +524,7 @@ impl<'a> OfflineRunner<'a> {
         } else {
             None
         };
-        let job = MapJob::new(self.input, self.config, poses).with_rigidity(rigidity);
+        let job = MapJob::new(&self.input, self.config, poses).with_rigidity(rigidity);
         let label = format!("motion maps (pass {k})");
         cached_maps(&job, self.cache_dir(), &label, progress)
     }
@@ -536,7 +555,7 @@ impl<'a> OfflineRunner<'a> {
         if let Some(m) = self.sequence_maps()? {
             return Ok((None, Some(m)));
         }
-        let needs_first = MapJob::needs_poses(self.input, self.config)
+        let needs_first = MapJob::needs_poses(&self.input, self.config)
             && self.config.motion.poses == PoseSource::Own;
         let first = if needs_first {
             Some(self.first_pass(progress)?)
@@ -574,7 +593,7 @@ impl<'a> OfflineRunner<'a> {
     /// The run that ends with its first pass because that pass tracked no frame: the first
     /// pass (every frame without a pose) is the result, with no maps and no weighted pass, so
     /// the caller writes its trajectory and status like any run that tracked nothing.
-    fn untracked_output(&self, mut record: Value, first: FirstPassResult) -> OfflineOutput {
+    fn untracked_output(&self, mut record: RunRecord, first: FirstPassResult) -> OfflineOutput {
         let pass = first.output.clone().unwrap_or_else(|| PassOutput {
             trajectory: Trajectory::default(),
             status: self
@@ -595,13 +614,17 @@ impl<'a> OfflineRunner<'a> {
             },
             skipped: Vec::new(),
         });
-        record["first_pass"] = first.record.clone();
-        record["prob"] = Value::Null;
-        record["nothing_tracked"] = json!(
+        record.first_pass = Some(first.record.clone());
+        record.prob = None;
+        record.nothing_tracked = Some(
             "the first pass tracked no frame: no motion maps and no weighted pass; the result \
              is the first pass"
+                .into(),
         );
-        record["passes"] = json!([{"maps": null, "stats": pass.stats}]);
+        record.passes = Some(vec![PassRecord {
+            maps: None,
+            stats: pass.stats,
+        }]);
         OfflineOutput {
             first_pass: Some(first),
             maps: Vec::new(),
@@ -615,7 +638,10 @@ impl<'a> OfflineRunner<'a> {
         let mut record = self.base_record();
         if method.terms().is_none() {
             let out = self.pass(method, None, seed, &format!("{method} 0"), progress)?;
-            record["passes"] = json!([{"maps": null, "stats": out.stats}]);
+            record.passes = Some(vec![PassRecord {
+                maps: None,
+                stats: out.stats,
+            }]);
             return Ok(OfflineOutput {
                 first_pass: None,
                 maps: Vec::new(),
@@ -637,7 +663,7 @@ impl<'a> OfflineRunner<'a> {
                 first_maps
                     .clone()
                     .ok_or_else(|| Error::Input("no maps".into()))?
-            } else if fixed || !MapJob::needs_poses(self.input, self.config) {
+            } else if fixed || !MapJob::needs_poses(&self.input, self.config) {
                 maps.last()
                     .cloned()
                     .ok_or_else(|| Error::Input("no maps".into()))?
@@ -661,13 +687,16 @@ impl<'a> OfflineRunner<'a> {
         let gt_used = maps
             .iter()
             .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
-        record["ground_truth_used_at_run_time"] = json!(gt_used);
-        record["first_pass"] = first.as_ref().map_or(Value::Null, |f| f.record.clone());
-        record["prob"] = maps.first().map_or(Value::Null, |m| m.record.clone());
-        record["passes"] = Value::Array(
+        record.ground_truth_used_at_run_time = gt_used;
+        record.first_pass = first.as_ref().map(|f| f.record.clone());
+        record.prob = maps.first().map(|m| m.record.clone());
+        record.passes = Some(
             maps.iter()
                 .zip(&passes)
-                .map(|(m, p)| json!({"maps": m.record, "stats": p.stats}))
+                .map(|(m, p)| PassRecord {
+                    maps: Some(m.record.clone()),
+                    stats: p.stats,
+                })
                 .collect(),
         );
         Ok(OfflineOutput {
@@ -680,36 +709,51 @@ impl<'a> OfflineRunner<'a> {
 
     /// The record fields every run has (the body of `run.json` before any pass; a caller
     /// whose run stopped writes this).
-    pub fn record(&self) -> Value {
+    pub fn record(&self) -> RunRecord {
         self.base_record()
     }
 
     /// The record fields every run has.
-    fn base_record(&self) -> Value {
+    fn base_record(&self) -> RunRecord {
         let c = self.config;
         let p = c.system_params();
         let d = &p.map.dynapix;
-        json!({
-            "sequence": self.input.record(),
-            "method": c.method.name(),
-            "mode": c.mode.name(),
-            "cues": c.method.terms().map(|_| c.cues().name()),
-            "first_pass_kind": c.method.terms().map(|_| c.passes.first.name()),
-            "weighted_passes": c.method.terms().map(|_| c.passes.weighted),
-            "oracle_poses": c.motion.poses == PoseSource::GroundTruth,
-            "ground_truth_used_at_run_time": false,
-            "loop_closing": p.loop_closing.enabled,
-            "masks": c.method.needs_masks().then(|| self.masks_dir()),
-            "dynapix": {
-                "weighting": format!("{:?}", d.weighting),
-                "gamma_add": d.gamma_add,
-                "gamma_del": d.gamma_del,
-                "update": format!("{:?}", d.update),
-                "ba_weight_clamp": dynapix_slam::weighting::ba_weight_clamp(d),
-                "threshold": c.method.thresholds().then_some(d.gamma_add),
-            },
-            "config": c.to_json_value(),
-        })
+        let dynapix = c.method.terms().is_some();
+        RunRecord {
+            sequence: self.input.record(),
+            method: c.method.name().to_string(),
+            mode: c.mode.name().to_string(),
+            schedule: None,
+            cues: dynapix.then(|| c.cues().name()),
+            first_pass_kind: dynapix.then(|| c.passes.first.name().to_string()),
+            weighted_passes: dynapix.then_some(c.passes.weighted),
+            oracle_poses: Some(c.motion.poses == PoseSource::GroundTruth),
+            ground_truth_used_at_run_time: Some(false),
+            loop_closing: Some(p.loop_closing.enabled),
+            masks: c.method.needs_masks().then(|| self.masks_dir()),
+            dynapix: Some(WeightingRecord {
+                weighting: format!("{:?}", d.weighting),
+                gamma_add: d.gamma_add,
+                gamma_del: d.gamma_del,
+                update: format!("{:?}", d.update),
+                ba_weight_clamp: dynapix_slam::weighting::ba_weight_clamp(d),
+                threshold: c.method.thresholds().then_some(d.gamma_add),
+            }),
+            config: c.to_json_value(),
+            outputs: None,
+            first_pass: None,
+            prob: None,
+            passes: None,
+            nothing_tracked: None,
+            runs: None,
+            seed: None,
+            earlier_passes: None,
+            skipped_frames: None,
+            results: None,
+            complete: None,
+            error: None,
+            failed_frame: None,
+        }
     }
 }
 

@@ -6,11 +6,11 @@ use std::path::PathBuf;
 
 use dynapix_io::{FrameStatus, StampedStatus, Trajectory};
 use dynapix_slam::loop_closing::LoopEvent;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// A frame of a sequence whose files cannot be used: a missing, truncated or undecodable rgb
 /// or depth image, rgb and depth of different sizes, or a size other than the camera's.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BadFrame {
     /// Index of the frame in the sequence (0-based).
     pub index: usize,
@@ -65,7 +65,7 @@ fn status_word<S: serde::Serializer>(
 }
 
 /// Counters of a pass.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PassStats {
     /// Frames processed.
     pub frames: usize,
@@ -102,6 +102,14 @@ pub struct PassOutput {
     pub stats: PassStats,
     /// Frames skipped because their files cannot be used, in order.
     pub skipped: Vec<BadFrame>,
+}
+
+impl PassOutput {
+    /// The trajectory as it reads back from its TUM text (what the pass leaves in
+    /// `trajectory.txt`).
+    pub fn written_trajectory(&self) -> crate::error::Result<Trajectory> {
+        crate::poses::as_written(&self.trajectory)
+    }
 }
 
 /// The first pass's trajectory (as its `trajectory.txt` reads back) and where it came from.

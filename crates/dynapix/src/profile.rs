@@ -191,7 +191,7 @@ where
     }
 }
 
-pub use dynapix_io::usage::{ProcessUsage, process_usage};
+pub(crate) use dynapix_io::usage::process_usage;
 
 /// Threshold (bytes) below which [`retain_freed_memory`] has glibc serve allocations from its
 /// heap: 32 MiB, glibc's largest allowed value on 64-bit targets.

@@ -7,6 +7,7 @@
 //! Maps kept in memory hold the same 16-bit values, so a pass reads the same weights from a
 //! fresh run, a cached run and a run without any folder.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -19,9 +20,10 @@ use serde_json::{Value, json};
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
+use crate::record::{FileFingerprint, MapsStatus, MotionRecord};
 
 /// The record file of a map folder.
-pub const RECORD_FILE: &str = "motion.json";
+pub const RECORD_FILE: &str = crate::record::MOTION_RECORD_FILE;
 
 /// A folder of motion maps with its `motion.json`.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -41,14 +43,14 @@ impl MapFolder {
         Some(self.dir.join(input.map_name(i)?))
     }
 
+    /// The motion probability stored in the map file `path` (P = 1 − stored/1000).
+    pub fn read_probability(path: &Path) -> Result<MotionProbability> {
+        Ok(dynapix_io::weights::read_motion_probability(path)?)
+    }
+
     /// The record, when the folder has one.
-    pub fn read_record(&self) -> Option<Result<Value>> {
-        let path = self.dir.join(RECORD_FILE);
-        let text = std::fs::read_to_string(&path).ok()?;
-        Some(
-            serde_json::from_str(&text)
-                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
-        )
+    pub fn read_record(&self) -> Option<Result<MotionRecord>> {
+        MotionRecord::read_in(&self.dir)
     }
 
     /// Writes the record atomically; a `complete` one lists every map file with its size and
@@ -57,23 +59,22 @@ impl MapFolder {
         &self,
         input: &Input,
         config: &Value,
-        status: &str,
+        status: MapsStatus,
         results: Value,
     ) -> Result<()> {
         std::fs::create_dir_all(&self.dir).map_err(|e| dynapix_io::IoError::io(&self.dir, e))?;
-        let mut doc = json!({
-            "sequence": input.sequence.dir,
-            "config": config,
-            "status": status,
-            "results": results,
-        });
-        if status == "complete" {
-            doc["files"] = self.file_checksums(input)?;
+        let files = match status {
+            MapsStatus::Complete => Some(self.file_checksums(input)?),
+            MapsStatus::Running => None,
+        };
+        MotionRecord {
+            sequence: input.sequence.dir.clone(),
+            config: config.clone(),
+            status,
+            results,
+            files,
         }
-        let text = serde_json::to_string_pretty(&doc)
-            .map_err(|e| Error::file(self.dir.join(RECORD_FILE), e.to_string()))?;
-        dynapix_io::write_atomic(self.dir.join(RECORD_FILE), text.as_bytes())?;
-        Ok(())
+        .write_in(&self.dir)
     }
 
     /// The cache folder `<root>/<prefix>-<key>` of the maps that `config` (their record's
@@ -108,7 +109,7 @@ impl MapFolder {
 
     /// Size and FNV-64 checksum of every frame's map file (bad frames of a run that skips
     /// them have none), by file name: `{"<name>.png": {"bytes": n, "fnv64": "…"}}`.
-    pub fn file_checksums(&self, input: &Input) -> Result<Value> {
+    pub fn file_checksums(&self, input: &Input) -> Result<BTreeMap<String, FileFingerprint>> {
         let files = (0..input.len())
             .into_par_iter()
             .filter(|&i| !input.is_bad(i))
@@ -121,10 +122,10 @@ impl MapFolder {
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default();
-                Ok((name, file_fingerprint(&bytes)))
+                Ok((name, FileFingerprint::of(&bytes)))
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(Value::Object(files.into_iter().collect()))
+        Ok(files.into_iter().collect())
     }
 
     /// Whether this folder holds the complete maps of `config`: its record says `config` and
@@ -135,17 +136,17 @@ impl MapFolder {
             Some(Err(e)) => return CacheCheck::Damaged(e.to_string()),
             Some(Ok(rec)) => rec,
         };
-        if rec.get("config") != Some(&as_read_back(config)) {
+        if !rec.describes(config) {
             return CacheCheck::Damaged(format!(
                 "{} describes other maps than its key",
                 self.dir.join(RECORD_FILE).display()
             ));
         }
-        if rec.get("status").and_then(Value::as_str) != Some("complete") {
+        if rec.status != MapsStatus::Complete {
             // An interrupted computation: not damage, just unfinished.
             return CacheCheck::Absent;
         }
-        let Some(files) = rec.get("files").and_then(Value::as_object) else {
+        let Some(files) = &rec.files else {
             return CacheCheck::Damaged(format!(
                 "{} lists no checksums (written by an older version)",
                 self.dir.join(RECORD_FILE).display()
@@ -162,13 +163,13 @@ impl MapFolder {
                 };
                 match std::fs::read(&path) {
                     Err(e) => Some((i, format!("{}: {e}", path.display()))),
-                    Ok(bytes) if &file_fingerprint(&bytes) != expected => Some((
+                    Ok(bytes) if &FileFingerprint::of(&bytes) != expected => Some((
                         i,
                         format!(
                             "{}: {} bytes, not the {} bytes with the checksum the record lists",
                             path.display(),
                             bytes.len(),
-                            expected.get("bytes").unwrap_or(&Value::Null)
+                            expected.bytes
                         ),
                     )),
                     Ok(_) => None,
@@ -220,10 +221,6 @@ pub enum CacheCheck {
     Damaged(String),
 }
 
-/// Size and FNV-64 checksum of a file's bytes, as recorded in a cache record.
-pub fn file_fingerprint(bytes: &[u8]) -> Value {
-    json!({"bytes": bytes.len(), "fnv64": Fnv64::of(bytes)})
-}
 /// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
 /// the last place away from the value that was written, so a record read from a file is
 /// compared with the expected record after the same round trip.
@@ -272,13 +269,14 @@ impl MapSet {
             }
             Some(Err(e)) => return Err(e),
             Some(Ok(rec)) => {
-                let gt = record_uses_ground_truth(&rec);
+                let gt = rec.uses_ground_truth();
                 record["poses"] = json!(match gt {
                     Some(true) => "ground truth",
                     Some(false) => "not ground truth",
                     None => "unknown",
                 });
-                record["motion_json"] = rec;
+                record["motion_json"] = serde_json::to_value(&rec)
+                    .map_err(|e| Error::file(folder.dir.join(RECORD_FILE), e.to_string()))?;
                 gt
             }
         };
@@ -329,21 +327,6 @@ impl MapSet {
             Some(p) => Error::file(p, "no such map (motion map missing)"),
             None => Error::Input(format!("frame {i} has no motion map")),
         }
-    }
-}
-
-/// Whether a `motion.json` record says its maps were made with ground-truth poses
-/// (`None` when it does not say).
-pub fn record_uses_ground_truth(rec: &Value) -> Option<bool> {
-    let poses = rec.pointer("/config/poses")?;
-    if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
-        return Some(src == "ground_truth");
-    }
-    // Records written before provenance was structured: `"source": "gt" | "file"`.
-    match poses.get("source").and_then(Value::as_str)? {
-        "gt" => Some(true),
-        "file" => Some(false),
-        _ => None,
     }
 }
 

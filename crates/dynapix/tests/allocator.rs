@@ -32,7 +32,7 @@ fn a_freed_frame_buffer_is_reused_without_faulting_its_pages_in_again() {
         untuned.iter().all(|f| *f > pages / 2),
         "{untuned:?} faults for {pages} pages"
     );
-    assert!(dynapix::profile::retain_freed_memory());
+    assert!(dynapix::bench::retain_freed_memory());
     // After the change, a buffer of a new size is faulted in once and then reused.
     let size = BYTES + (2 << 20);
     faults_of_one_buffer(size);

@@ -5,12 +5,12 @@
 //! Run in release mode (`cargo test --release`).
 
 mod common;
-use common::{ate, copy_dir};
+use common::{ate, copy_dir, json};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use dynapix::maps::{MapFolder, MapJob, compute_into};
-use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::stages::{MapFolder, MapJob, compute_into};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{
     CameraChoice, Config, FlowPreset, FramePoses, Input, Method, NoProgress, OnlineDynaPix,
     PoseOrigin, PoseSource, RgbdFrame, Trajectory,
@@ -113,6 +113,30 @@ fn decoded_frames_are_kept_within_their_budget_and_read_back_identical() {
     // Stopping frees what was kept.
     kept.keep_decoded_frames(false);
     assert_eq!(kept.decoded_frames_kept(), 0);
+}
+
+#[test]
+fn the_input_of_a_run_has_a_decoded_frame_cache_of_its_own() {
+    let seq = sequence();
+    let config = Config::default();
+    let shared = open(seq, &config);
+    shared.keep_decoded_frames(true);
+    shared.load_rgbd(0).unwrap();
+    // A run's copy starts empty and off, whatever the shared input keeps.
+    let run = shared.for_run();
+    assert_eq!(run.decoded_frames_kept(), 0);
+    run.load_rgbd(1).unwrap();
+    assert_eq!(run.decoded_frames_kept(), 0);
+    run.keep_decoded_frames(true);
+    for i in 1..4 {
+        run.load_rgbd(i).unwrap();
+    }
+    assert_eq!(run.decoded_frames_kept(), 3);
+    // Neither sees the other's frames, and switching one off leaves the other alone.
+    assert_eq!(shared.decoded_frames_kept(), 1);
+    shared.keep_decoded_frames(false);
+    assert_eq!(run.decoded_frames_kept(), 3);
+    assert!(run.load_rgbd(2).unwrap().0 == open(seq, &config).load_rgbd(2).unwrap().0);
 }
 
 #[test]
@@ -319,10 +343,10 @@ fn weighted_offline_run_beats_orbslam2() {
     assert_eq!(dpx.final_pass().unwrap().stats.tracked, FRAMES);
     assert!(a_dpx < 0.5 * a_orb, "dynapix {a_dpx} vs orbslam2 {a_orb}");
     // No ground truth at run time, and the record says where the poses came from.
-    assert_eq!(dpx.record["ground_truth_used_at_run_time"], false);
-    assert_eq!(dpx.record["prob"]["source"], "computed");
-    assert_eq!(dpx.record["prob"]["poses"]["source"], "pass");
-    assert_eq!(dpx.record["config"]["method"], "dynapix");
+    assert_eq!(json(&dpx.record)["ground_truth_used_at_run_time"], false);
+    assert_eq!(json(&dpx.record)["prob"]["source"], "computed");
+    assert_eq!(json(&dpx.record)["prob"]["poses"]["source"], "pass");
+    assert_eq!(json(&dpx.record)["config"]["method"], "dynapix");
 }
 
 /// Every file and folder under `dir` with its size and modification time.
@@ -369,7 +393,29 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
     let cache = tmp.path().join("cache");
     let cold = offline(&config, &input, &cache);
     let warm = offline(&config, &input, &cache);
-    assert_eq!(warm.record["prob"]["source"], "cache (key matched)");
+    assert_eq!(json(&warm.record)["prob"]["source"], "cache (key matched)");
+    // The records round-trip through their types: the run's record through its JSON text,
+    // and the motion.json of every map folder the cold run wrote.
+    let text = serde_json::to_string_pretty(&cold.record).unwrap();
+    let back: dynapix::RunRecord = serde_json::from_str(&text).unwrap();
+    assert_eq!(json(&back), serde_json::from_str::<serde_json::Value>(&text).unwrap());
+    assert_eq!(back.passes.as_ref().map(Vec::len), Some(config.passes.weighted));
+    let mut folders = 0;
+    for e in std::fs::read_dir(&cache).unwrap() {
+        let path = e.unwrap().path().join("motion.json");
+        if !path.is_file() {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let rec: dynapix::MotionRecord = serde_json::from_str(&text).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(json(&rec), v, "{} does not round-trip", path.display());
+        assert_eq!(rec.status, dynapix::MapsStatus::Complete);
+        assert_eq!(rec.files.as_ref().map(|f| f.len()), Some(input.len()));
+        folders += 1;
+    }
+    // The rigidity maps and the maps of the weighted passes.
+    assert!(folders >= 2, "{folders} map folders in the cache");
     // The whole run (rigidity maps, first pass, motion maps of both weighted passes) with
     // no cache folder, on a sequence folder it may not write to.
     set_read_only(&seq, true);
@@ -385,8 +431,8 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
     set_read_only(&seq, false);
     let none = none.unwrap();
     assert_eq!(before, after, "the sequence folder was written to");
-    assert_eq!(none.record["prob"]["source"], "computed (no cache)");
-    assert_eq!(none.record["first_pass"]["source"], "computed (no cache)");
+    assert_eq!(json(&none.record)["prob"]["source"], "computed (no cache)");
+    assert_eq!(json(&none.record)["first_pass"]["source"], "computed (no cache)");
     assert!(none.maps.iter().all(|m| m.dir().is_none()));
     assert_eq!(none.passes.len(), config.passes.weighted);
     // The same trajectories to the bit: fresh, cached and folder-less runs read the same
@@ -422,12 +468,12 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     config.motion.flow = FlowPreset::Ultrafast;
     let input = open(&seq, &config);
     let first = offline(&config, &input, &cache);
-    assert_eq!(first.record["prob"]["source"], "computed");
-    assert_eq!(first.record["first_pass"]["source"], "computed");
+    assert_eq!(json(&first.record)["prob"]["source"], "computed");
+    assert_eq!(json(&first.record)["first_pass"]["source"], "computed");
     // Same configuration: maps and first pass come from the cache, same trajectory.
     let again = offline(&config, &input, &cache);
-    assert_eq!(again.record["prob"]["source"], "cache (key matched)");
-    assert_eq!(again.record["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(json(&again.record)["prob"]["source"], "cache (key matched)");
+    assert_eq!(json(&again.record)["first_pass"]["source"], "cache (key matched)");
     assert_eq!(
         again.final_pass().unwrap().trajectory,
         first.final_pass().unwrap().trajectory
@@ -438,32 +484,32 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     let mut changed = config.clone();
     changed.motion.params.movable.clip_hi += 5.0;
     let c = offline(&changed, &input, &cache);
-    assert_eq!(c.record["prob"]["source"], "computed");
-    assert_eq!(c.record["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(json(&c.record)["prob"]["source"], "computed");
+    assert_eq!(json(&c.record)["first_pass"]["source"], "cache (key matched)");
     assert_ne!(c.maps[0].dir().unwrap(), dir1);
     // Another first pass (SLAM parameters changed) is run, not taken from the cache.
     let mut slam = config.clone();
     slam.slam.params.tracking.motion_th = 14.0;
     let r = offline(&slam, &input, &cache);
-    assert_eq!(r.record["first_pass"]["source"], "computed");
+    assert_eq!(json(&r.record)["first_pass"]["source"], "computed");
     // Poses from a file: the same file is a cache hit, an edited one (same path) is not.
     let file = tmp.path().join("poses.txt");
     std::fs::copy(seq.join("groundtruth.txt"), &file).unwrap();
     let mut from_file = config.clone();
     from_file.motion.poses = PoseSource::File(file.clone());
     assert_eq!(
-        offline(&from_file, &input, &cache).record["prob"]["source"],
+        json(&offline(&from_file, &input, &cache).record)["prob"]["source"],
         "computed"
     );
     assert_eq!(
-        offline(&from_file, &input, &cache).record["prob"]["source"],
+        json(&offline(&from_file, &input, &cache).record)["prob"]["source"],
         "cache (key matched)"
     );
     let mut gt = Trajectory::read_tum(&file).unwrap();
     gt.poses[3].pose.translation.vector.x += 0.01;
     gt.write_tum(&file).unwrap();
     assert_eq!(
-        offline(&from_file, &input, &cache).record["prob"]["source"],
+        json(&offline(&from_file, &input, &cache).record)["prob"]["source"],
         "computed"
     );
     // A map deleted from a cached folder: recomputed in place, same result.
@@ -474,7 +520,7 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
         .unwrap();
     std::fs::remove_file(&victim).unwrap();
     let d = offline(&config, &input, &cache);
-    assert_eq!(d.record["prob"]["source"], "computed");
+    assert_eq!(json(&d.record)["prob"]["source"], "computed");
     assert!(victim.is_file());
     assert_eq!(
         d.final_pass().unwrap().trajectory,
@@ -485,7 +531,7 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     short.sequence.max_frames = Some(20);
     let short_input = open(&seq, &short);
     let s = offline(&short, &short_input, &cache);
-    assert_eq!(s.record["prob"]["source"], "computed");
+    assert_eq!(json(&s.record)["prob"]["source"], "computed");
     assert_eq!(s.final_pass().unwrap().status.len(), 20);
 }
 
@@ -494,7 +540,7 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
 /// are found, recomputed, and the result is the one of the intact cache.
 #[test]
 fn a_damaged_cache_is_found_and_recomputed() {
-    use dynapix::maps::{CacheCheck, file_fingerprint};
+    use dynapix::stages::CacheCheck;
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");
     let seq = camera_only(tmp.path());
@@ -523,7 +569,7 @@ fn a_damaged_cache_is_found_and_recomputed() {
         other => panic!("{other:?}"),
     }
     let r = offline(&config, &input, &cache);
-    assert_eq!(r.record["prob"]["source"], "computed");
+    assert_eq!(json(&r.record)["prob"]["source"], "computed");
     assert_eq!(std::fs::read(map(5)).unwrap(), bytes);
     assert_eq!(r.final_pass().unwrap().trajectory, reference);
 
@@ -534,12 +580,12 @@ fn a_damaged_cache_is_found_and_recomputed() {
         CacheCheck::Damaged(_)
     ));
     let r = offline(&config, &input, &cache);
-    assert_eq!(r.record["prob"]["source"], "computed");
+    assert_eq!(json(&r.record)["prob"]["source"], "computed");
     assert_eq!(r.final_pass().unwrap().trajectory, reference);
     assert_eq!(folder.check_cache(&input, &key_doc), CacheCheck::Valid);
 
     // A truncated first-pass trajectory: run again, not used.
-    let fp = PathBuf::from(r.record["first_pass"]["dir"].as_str().unwrap());
+    let fp = PathBuf::from(json(&r.record)["first_pass"]["dir"].as_str().unwrap());
     let traj = fp.join("trajectory.txt");
     let full = std::fs::read_to_string(&traj).unwrap();
     let half: String = full
@@ -549,7 +595,7 @@ fn a_damaged_cache_is_found_and_recomputed() {
         .collect();
     std::fs::write(&traj, &half).unwrap();
     let r = offline(&config, &input, &cache);
-    assert_eq!(r.record["first_pass"]["source"], "computed");
+    assert_eq!(json(&r.record)["first_pass"]["source"], "computed");
     assert_eq!(std::fs::read_to_string(&traj).unwrap(), full);
     assert_eq!(r.final_pass().unwrap().trajectory, reference);
     // The same with a record whose checksum was made to match: the pose count tells.
@@ -557,15 +603,15 @@ fn a_damaged_cache_is_found_and_recomputed() {
     let pass_json = fp.join("pass.json");
     let mut rec: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&pass_json).unwrap()).unwrap();
-    rec["trajectory"] = file_fingerprint(half.as_bytes());
+    rec["trajectory"] = json(&dynapix::FileFingerprint::of(half.as_bytes()));
     std::fs::write(&pass_json, rec.to_string()).unwrap();
     let r = offline(&config, &input, &cache);
-    assert_eq!(r.record["first_pass"]["source"], "computed");
+    assert_eq!(json(&r.record)["first_pass"]["source"], "computed");
     assert_eq!(r.final_pass().unwrap().trajectory, reference);
     // Intact again: reused.
     let r = offline(&config, &input, &cache);
-    assert_eq!(r.record["first_pass"]["source"], "cache (key matched)");
-    assert_eq!(r.record["prob"]["source"], "cache (key matched)");
+    assert_eq!(json(&r.record)["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(json(&r.record)["prob"]["source"], "cache (key matched)");
 }
 
 #[test]
@@ -577,9 +623,9 @@ fn shared_rigidity_pairs_give_every_frame_the_map_it_gets_alone() {
     assert!(config.motion.rigidity.shared_pairs);
     let input = open(sequence(), &config);
     let mut params = config.motion.rigidity.clone();
-    let shared = dynapix::cues::RigidityJob::new(&input, params.clone());
+    let shared = dynapix::stages::RigidityJob::new(&input, params.clone());
     params.shared_pairs = false;
-    let own = dynapix::cues::RigidityJob::new(&input, params);
+    let own = dynapix::stages::RigidityJob::new(&input, params);
     assert_ne!(
         own.key(),
         shared.key(),
@@ -830,9 +876,9 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
         .unwrap()
         .run(&NoProgress)
         .unwrap();
-    assert_eq!(out.record["prob"]["source"], "sequence prob/ folder");
-    assert_eq!(out.record["prob"]["poses"], "ground truth");
-    assert_eq!(out.record["ground_truth_used_at_run_time"], true);
+    assert_eq!(json(&out.record)["prob"]["source"], "sequence prob/ folder");
+    assert_eq!(json(&out.record)["prob"]["poses"], "ground truth");
+    assert_eq!(json(&out.record)["ground_truth_used_at_run_time"], true);
     assert!(
         out.first_pass.is_none(),
         "the sequence's maps need no first pass"
@@ -844,7 +890,7 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
         .unwrap()
         .run(&NoProgress)
         .unwrap();
-    assert!(out.record["ground_truth_used_at_run_time"].is_null());
+    assert!(json(&out.record)["ground_truth_used_at_run_time"].is_null());
     // Recomputing ignores them and records the own poses.
     let recompute = RunOptions {
         recompute_maps: true,
@@ -854,8 +900,8 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
         .unwrap()
         .run(&NoProgress)
         .unwrap();
-    assert_eq!(out.record["ground_truth_used_at_run_time"], false);
-    assert_eq!(out.record["prob"]["source"], "computed");
+    assert_eq!(json(&out.record)["ground_truth_used_at_run_time"], false);
+    assert_eq!(json(&out.record)["prob"]["source"], "computed");
     // Oracle poses are ground truth at run time.
     let mut oracle = config.clone();
     oracle.motion.poses = PoseSource::GroundTruth;
@@ -871,8 +917,8 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     .unwrap()
     .run(&NoProgress)
     .unwrap();
-    assert_eq!(out.record["ground_truth_used_at_run_time"], true);
-    assert_eq!(out.record["oracle_poses"], true);
+    assert_eq!(json(&out.record)["ground_truth_used_at_run_time"], true);
+    assert_eq!(json(&out.record)["oracle_poses"], true);
 }
 
 /// A frame whose depth file is no image stops a run naming it and keeps the pass up to it;

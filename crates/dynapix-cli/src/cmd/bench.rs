@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynapix::profile::StageProfiler;
+use dynapix::bench::StageProfiler;
 use serde_json::json;
 
 use super::common::{Bars, SequenceArgs, write_json};
@@ -68,9 +68,9 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     let mut runs = Vec::with_capacity(args.repeat as usize);
     for _ in 0..args.repeat {
         runs.push(if args.online {
-            dynapix::bench_online(&config, &input, profiler, bars)?
+            dynapix::bench::bench_online(&config, &input, profiler, bars)?
         } else {
-            let (r, out) = dynapix::bench_offline(&config, &input, profiler, bars)?;
+            let (r, out) = dynapix::bench::bench_offline(&config, &input, profiler, bars)?;
             let t = out
                 .final_pass()
                 .map(|p| p.trajectory.clone())

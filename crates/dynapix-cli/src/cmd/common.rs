@@ -9,7 +9,7 @@ use std::sync::Mutex;
 
 use anyhow::Context;
 use clap::builder::{PossibleValue, TypedValueParser};
-use dynapix::slam::PassOutput;
+use dynapix::PassOutput;
 use dynapix::{CameraChoice, CameraPreset, Config, Input, Progress, ProgressEvent};
 use dynapix_io::trajectory::write_status;
 use dynapix_slam::loop_closing::LoopEvent;
@@ -299,6 +299,15 @@ pub fn incomplete(e: &anyhow::Error) -> serde_json::Value {
         "error": report(e),
         "failed_frame": library_error(e).and_then(dynapix::Error::bad_frame),
     })
+}
+
+/// Why a run stopped and the frame that stopped it, when a frame did (for
+/// [`dynapix::RunRecord::mark_incomplete`]).
+pub fn stop_reason(e: &anyhow::Error) -> (String, Option<dynapix::BadFrame>) {
+    (
+        report(e),
+        library_error(e).and_then(dynapix::Error::bad_frame).cloned(),
+    )
 }
 
 /// Adds the keys of the object `extra` to the object `record`.

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use dynapix::offline::RunOptions;
+use dynapix::RunOptions;
 use dynapix::{CameraChoice, Config, FlowPreset, Input, Method, PoseSource};
 use dynapix_eval::{SequenceSummary, paper_table};
 use image::{Rgb, RgbImage};

@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use dynapix::offline::{OfflineRunner, RunOptions};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Config, Input, Method, Progress, ProgressEvent};
 use dynapix_eval::{RunResult, SequenceSummary, paper_table};
 use rayon::prelude::*;
@@ -86,13 +86,10 @@ fn read_result(dir: &Path) -> Option<(RunResult, Option<f64>)> {
     ))
 }
 
-/// True unless the run folder's `run.json` says the run stopped (`"complete": false`); a
-/// folder of a version without the field counts as complete.
+/// True when the run folder's `run.json` is a run record that does not say the run stopped
+/// (`"complete": false`); a record of a version without the field counts as complete.
 fn completed(dir: &Path) -> bool {
-    std::fs::read_to_string(dir.join("run.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v.get("complete") != Some(&serde_json::Value::Bool(false)))
+    dynapix::RunRecord::read(dir.join("run.json")).is_ok_and(|r| r.complete != Some(false))
 }
 
 /// Runs `dynapix experiment`.

@@ -15,9 +15,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use dynapix::maps::{MapFolder, MapJob};
-use dynapix::offline::{OfflineRunner, RunOptions};
-use dynapix::{BackgroundSource, FlowPreset, FramePoses, Mode, PoseOrigin, PoseSource};
+use dynapix::stages::{FramePoses, MapFolder, MapJob, PoseOrigin};
+use dynapix::{OfflineRunner, RunOptions};
+use dynapix::{BackgroundSource, FlowPreset, Mode, PoseSource};
 use dynapix_io::{MotionProbability, StampedPose, Trajectory};
 use dynapix_motion::metrics::{RocAccumulator, psnr_masked};
 use dynapix_motion::{FloatImage, Variant};
@@ -189,7 +189,7 @@ fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
 /// work, even for a user who could write there anyway.
 fn refuse_read_only(seq_dir: &std::path::Path, prob_dir: &std::path::Path) -> anyhow::Result<()> {
     for dir in [seq_dir, prob_dir] {
-        if dir.exists() && !dynapix::offline::folder_writable(dir) {
+        if dir.exists() && !dynapix::stages::folder_writable(dir) {
             bail!(
                 "{} is read-only (or marked so); `motion` writes its maps into the sequence \
                  folder, so it leaves this one alone: copy the sequence to a writable place, \
@@ -301,10 +301,10 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         && !args.force
     {
         let old = old?;
-        if old.get("config") != Some(&dynapix::maps::as_read_back(&record)) {
+        if !old.describes(&record) {
             bail!(
                 "{} was written with other settings; use --force to recompute all frames",
-                folder.dir.join(dynapix::maps::RECORD_FILE).display()
+                folder.dir.join(dynapix::MotionRecord::FILE).display()
             );
         }
     }
@@ -317,7 +317,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if args.save_background && reconstructs {
         std::fs::create_dir_all(&bgrec_dir)?;
     }
-    folder.write_record(&input, &record, "running", serde_json::Value::Null)?;
+    folder.write_record(&input, &record, dynapix::MapsStatus::Running, serde_json::Value::Null)?;
 
     let map_path = |i: usize| folder.map_path(&input, i);
     let todo: Vec<usize> = (0..n)
@@ -333,7 +333,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     // itself against the true background: inside all movers (mask > 0), then inside the
     // moving ones (mask 255).
     let mut psnr_acc = [0.0f64; 6];
-    let task = dynapix::progress::ProgressEvent::Begin {
+    let task = dynapix::ProgressEvent::Begin {
         task: "motion maps",
         total: todo.len() as u64,
     };
@@ -401,13 +401,13 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             for (a, p) in psnr_acc.iter_mut().zip(ps) {
                 *a += p;
             }
-            bars.event(dynapix::progress::ProgressEvent::Step {
+            bars.event(dynapix::ProgressEvent::Step {
                 task: "motion maps",
                 message: "",
             });
         },
     );
-    bars.event(dynapix::progress::ProgressEvent::End {
+    bars.event(dynapix::ProgressEvent::End {
         task: "motion maps",
     });
     let stats = stats?;
@@ -481,7 +481,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             "frame_psnr_in_moving_db": raw_psnr_moving,
         });
     }
-    folder.write_record(&input, &record, "complete", results)?;
+    folder.write_record(&input, &record, dynapix::MapsStatus::Complete, results)?;
     Ok(())
 }
 

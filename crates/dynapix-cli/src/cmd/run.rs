@@ -21,17 +21,16 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use dynapix::offline::{OfflineRunner, RunOptions};
-use dynapix::stream::OnlineRun;
 use dynapix::{
-    Config, Cue, Cues, FirstPass, FlowPreset, Input, Method, Mode, PoseSource, ProbUpdate,
+    Config, Cue, Cues, FirstPass, FlowPreset, FrameStatus, Input, Method, Mode, OfflineRunner,
+    OnlineRun, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus, Trajectory,
 };
-use dynapix_io::{FrameStatus, OutputFolder, StampedStatus, Trajectory};
+use dynapix_io::OutputFolder;
 use serde_json::{Value, json};
 
 use super::common::{
-    Bars, RESULT_MARKERS, SequenceArgs, check_out, evaluate, incomplete, merge, plots,
-    skipped_note, write_json, write_pass,
+    Bars, RESULT_MARKERS, SequenceArgs, check_out, evaluate, plots, skipped_note, stop_reason,
+    write_json, write_pass,
 };
 
 /// Per-map-point probability update rule.
@@ -317,8 +316,8 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
     let mut record = runner.record();
     match execute_into(&spec, &runner, staged.path(), &mut record, bars) {
         Ok(outcome) => {
-            record["complete"] = json!(true);
-            write_json(&staged.path().join("run.json"), &record)?;
+            record.mark_complete();
+            record.write(staged.path().join("run.json"))?;
             staged.commit()?;
             Ok(outcome)
         }
@@ -337,8 +336,9 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
                 );
                 return Err(e);
             }
-            merge(&mut record, incomplete(&e));
-            write_json(&staged.path().join("run.json"), &record)?;
+            let (why, frame) = stop_reason(&e);
+            record.mark_incomplete(why, frame);
+            record.write(staged.path().join("run.json"))?;
             let out = staged.commit()?;
             eprintln!(
                 "the run stopped; {} keeps what it computed (marked incomplete)",
@@ -355,7 +355,7 @@ fn execute_into(
     spec: &RunSpec<'_>,
     runner: &OfflineRunner<'_>,
     out: &Path,
-    record: &mut Value,
+    record: &mut RunRecord,
     bars: &Bars,
 ) -> anyhow::Result<RunOutcome> {
     let mut outcome = RunOutcome {
@@ -371,8 +371,8 @@ fn execute_into(
         skipped: Vec::new(),
     };
     let mut runs = Vec::new();
-    record["runs"] = json!(spec.runs);
-    record["seed"] = json!(spec.config.slam.seed + spec.first_run);
+    record.runs = Some(spec.runs);
+    record.seed = Some(spec.config.slam.seed + spec.first_run);
     for k in 0..spec.runs {
         let dir = if spec.runs == 1 {
             out.to_path_buf()
@@ -387,9 +387,9 @@ fn execute_into(
                 if let Some(p) = e.partial_pass() {
                     write_pass(&dir, p)?;
                     runs.push(json!(p.stats));
-                    record["skipped_frames"] = json!(p.skipped);
+                    record.skipped_frames = Some(p.skipped.clone());
                 }
-                record["results"] = json!(runs);
+                record.results = Some(runs);
                 return Err(e.into());
             }
         };
@@ -402,17 +402,17 @@ fn execute_into(
             outcome.prob_dir = run
                 .final_maps()
                 .and_then(|m| m.dir().map(Path::to_path_buf));
-            outcome.written_trajectory = Some(dynapix::poses::as_written(&pass.trajectory)?);
+            outcome.written_trajectory = Some(pass.written_trajectory()?);
             // The run's record replaces the record before the run (the runner's own fields).
-            let (runs, seed) = (record["runs"].take(), record["seed"].take());
+            let (runs, seed) = (record.runs, record.seed);
             *record = run.record.clone();
-            record["runs"] = runs;
-            record["seed"] = seed;
+            record.runs = runs;
+            record.seed = seed;
             let earlier = write_earlier_passes(spec.input, out, &spec.out, &run)?;
             if !earlier.is_empty() {
-                record["earlier_passes"] = json!(earlier);
+                record.earlier_passes = Some(earlier.clone());
             }
-            record["skipped_frames"] = json!(pass.skipped);
+            record.skipped_frames = Some(pass.skipped.clone());
             outcome.earlier_passes = earlier;
         }
         outcome.tracked.push(pass.stats.tracked);
@@ -429,7 +429,7 @@ fn execute_into(
         outcome.floor = ev.as_ref().and_then(|r| r.motionless_floor_m);
         runs.push(stats);
     }
-    record["results"] = json!(runs);
+    record.results = Some(runs);
     Ok(outcome)
 }
 
@@ -458,31 +458,18 @@ pub fn execute_online(
     check_out(out, &[("the sequence", input.sequence.dir.as_path())])?;
     // DynaPix+ masks (`--masks`, else the sequence's `mask/`), checked before anything is
     // written.
-    let masks = dynapix::stream::online_masks(input, config, masks)?;
+    let masks = dynapix::online_masks(input, config, masks)?;
     let masks = masks.as_deref();
     let staged = OutputFolder::begin(out, RESULT_MARKERS)?;
-    let mut record = json!({
-        "sequence": input.record(),
-        "method": config.method.name(),
-        "mode": config.mode.name(),
-        "schedule": "online",
-        "ground_truth_used_at_run_time": false,
-        "config": config.to_json_value(),
-        "outputs": {
-            "trajectory.txt": "poses as reported when each frame was processed",
-            "trajectory_refined.txt": "the system's final estimate of every tracked frame",
-        },
-    });
-    if let Some(m) = masks {
-        record["masks"] = json!(m);
-    }
+    let mut record = RunRecord::online(input, config, masks);
     let result = online_into(input, config, masks, staged.path(), &mut record, bars);
     if let Err(e) = &result {
-        merge(&mut record, incomplete(e));
+        let (why, frame) = stop_reason(e);
+        record.mark_incomplete(why, frame);
     } else {
-        record["complete"] = json!(true);
+        record.mark_complete();
     }
-    write_json(&staged.path().join("run.json"), &record)?;
+    record.write(staged.path().join("run.json"))?;
     let written = staged.commit()?;
     if result.is_err() {
         eprintln!(
@@ -509,14 +496,14 @@ fn online_into(
     config: &Config,
     masks: Option<&Path>,
     dir: &Path,
-    record: &mut Value,
+    record: &mut RunRecord,
     bars: &Bars,
 ) -> anyhow::Result<RunOutcome> {
-    let (run, result) = dynapix::stream::run_online(input, config, masks, bars, &mut |_| {});
+    let (run, result) = dynapix::run_online(input, config, masks, bars, &mut |_| {});
     if let Err(e) = result {
         // Keep what was reported up to the frame that stopped the run.
         write_online_poses(dir, &run)?;
-        record["skipped_frames"] = json!(run.skipped);
+        record.skipped_frames = Some(run.skipped.clone());
         return Err(e.into());
     }
     let n = input.len();
@@ -556,8 +543,8 @@ fn online_into(
         "masks": masks,
     });
     let ev = evaluate_into(input, dir, &mut stats, true)?;
-    record["skipped_frames"] = json!(run.skipped);
-    record["results"] = json!([stats]);
+    record.skipped_frames = Some(run.skipped.clone());
+    record.results = Some(vec![stats]);
     Ok(RunOutcome {
         trajectory: dir.join("trajectory.txt"),
         ate: vec![ev.as_ref().and_then(|r| r.result.ate_rmse_m)],
@@ -573,15 +560,15 @@ fn online_into(
 }
 
 /// The cache folder of a run on `input`: `given`, else none with `no_cache`, else the
-/// default one ([`dynapix::offline::default_cache_dir`]).
+/// default one ([`dynapix::RunOptions::default_cache_dir`]).
 pub fn cache_for(input: &Input, given: Option<PathBuf>, no_cache: bool) -> Option<PathBuf> {
     if no_cache {
         return None;
     }
     Some(given.unwrap_or_else(|| {
-        let dir = dynapix::offline::default_cache_dir(&input.sequence.dir);
+        let dir = dynapix::RunOptions::default_cache_dir(&input.sequence.dir);
         if !dir.starts_with(&input.sequence.dir) {
-            if dynapix::offline::user_cache_is_temporary() {
+            if dynapix::RunOptions::user_cache_is_temporary() {
                 tracing::warn!(
                     "{} is not writable and neither HOME nor XDG_CACHE_HOME is set: caching \
                      in {} (pass --cache DIR to keep the cache elsewhere)",

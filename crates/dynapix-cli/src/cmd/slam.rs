@@ -11,7 +11,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use dynapix::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
+use dynapix::PassOutput;
+use dynapix::stages::{PassWeights, SlamSession, load_vocabulary, run_pass};
 use dynapix::{Input, Method, VocabularyChoice};
 use dynapix_io::OutputFolder;
 use serde_json::json;

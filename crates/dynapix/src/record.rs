@@ -1,0 +1,376 @@
+//! The typed records of a run's outputs: `run.json` ([`RunRecord`], the provenance and
+//! results of one `dynapix run`) and a map folder's `motion.json` ([`MotionRecord`], what made
+//! the maps and the checksum of every map file). Both are written and read through these
+//! types; their JSON keys are the ones the records always had (the schema is in
+//! `docs/architecture.md`, "On-disk formats").
+//!
+//! The documents that key a cache (the `config` of a `motion.json`, the key document of a
+//! first pass) stay [`serde_json::Value`]s: their hash names the cache folder, so they are
+//! built exactly as before and compared as values.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use dynapix_io::FrameList;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::input::{CameraSource, Input};
+use crate::pass::{BadFrame, PassStats};
+
+/// The record file of a map folder.
+pub(crate) const MOTION_RECORD_FILE: &str = "motion.json";
+
+/// `run.json`: what a run read (sequence, camera, configuration), how it ran (method, passes,
+/// the maps' provenance) and what it gave (per-run results). Fields of one schedule only
+/// (offline passes, the online schedule) are absent from the other's record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    /// The sequence as read.
+    pub sequence: SequenceRecord,
+    /// The method's name (`orbslam2`, `dynapix`, `dynapix+`).
+    pub method: String,
+    /// `paper` or `reference`.
+    pub mode: String,
+    /// `online` for an online run; absent offline.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub schedule: Option<String>,
+    /// The cues of the motion maps (offline DynaPix runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cues: Option<String>,
+    /// The kind of the first pass (offline DynaPix runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_pass_kind: Option<String>,
+    /// The number of weighted passes (offline DynaPix runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weighted_passes: Option<usize>,
+    /// The maps were made with ground-truth poses by configuration (offline runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub oracle_poses: Option<bool>,
+    /// Whether ground truth made anything the run used (`null`: unknown, e.g. maps without a
+    /// record).
+    pub ground_truth_used_at_run_time: Option<bool>,
+    /// Loop closing was on (offline runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loop_closing: Option<bool>,
+    /// The DynaPix+ mask folder, when the method uses masks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub masks: Option<PathBuf>,
+    /// The SLAM weighting's parameters as the passes used them (offline runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynapix: Option<WeightingRecord>,
+    /// The whole resolved configuration ([`crate::Config`] as JSON).
+    pub config: Value,
+    /// What each output file of an online run holds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outputs: Option<BTreeMap<String, String>>,
+    /// Where the first pass came from (cache, computed, given) and its counters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_pass: Option<Value>,
+    /// The provenance of the first weighted pass's maps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prob: Option<Value>,
+    /// The passes of the (first) run: their maps' provenance and counters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub passes: Option<Vec<PassRecord>>,
+    /// Why the run ended with its first pass (it tracked no frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nothing_tracked: Option<String>,
+    /// Runs of the method (relocalisation seeds `seed`, `seed + 1`, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runs: Option<usize>,
+    /// The relocalisation seed of the first run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// The passes before the final one, evaluated (`passes/first`, `passes/pass_K`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub earlier_passes: Option<Vec<Value>>,
+    /// The bad frames the (first) run skipped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skipped_frames: Option<Vec<BadFrame>>,
+    /// One row per run: the pass counters, timings and, with ground truth, the evaluation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub results: Option<Vec<Value>>,
+    /// `true` when the run finished, `false` when it stopped (absent while it runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub complete: Option<bool>,
+    /// Why the run stopped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The frame that stopped the run, when a frame did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failed_frame: Option<BadFrame>,
+}
+
+impl RunRecord {
+    /// The record of an online run of `config` over `input` (with DynaPix+ `masks`), before
+    /// any frame.
+    pub fn online(input: &Input, config: &Config, masks: Option<&Path>) -> Self {
+        let outputs = [
+            (
+                "trajectory.txt",
+                "poses as reported when each frame was processed",
+            ),
+            (
+                "trajectory_refined.txt",
+                "the system's final estimate of every tracked frame",
+            ),
+        ];
+        Self {
+            sequence: input.record(),
+            method: config.method.name().to_string(),
+            mode: config.mode.name().to_string(),
+            schedule: Some("online".into()),
+            cues: None,
+            first_pass_kind: None,
+            weighted_passes: None,
+            oracle_poses: None,
+            ground_truth_used_at_run_time: Some(false),
+            loop_closing: None,
+            masks: masks.map(Path::to_path_buf),
+            dynapix: None,
+            config: config.to_json_value(),
+            outputs: Some(
+                outputs
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+                    .collect(),
+            ),
+            first_pass: None,
+            prob: None,
+            passes: None,
+            nothing_tracked: None,
+            runs: None,
+            seed: None,
+            earlier_passes: None,
+            skipped_frames: None,
+            results: None,
+            complete: None,
+            error: None,
+            failed_frame: None,
+        }
+    }
+
+    /// The record of the `run.json` at `path`.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text =
+            std::fs::read_to_string(path).map_err(|e| dynapix_io::IoError::io(path, e))?;
+        serde_json::from_str(&text).map_err(|e| Error::file(path, format!("not a run record: {e}")))
+    }
+
+    /// Writes the record to `path` atomically (pretty JSON).
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
+        write_pretty(path.as_ref(), self)
+    }
+
+    /// Marks the record finished.
+    pub fn mark_complete(&mut self) {
+        self.complete = Some(true);
+        self.error = None;
+        self.failed_frame = None;
+    }
+
+    /// Marks the record stopped by `error` (at `failed_frame` when a frame stopped it).
+    pub fn mark_incomplete(&mut self, error: String, failed_frame: Option<BadFrame>) {
+        self.complete = Some(false);
+        self.error = Some(error);
+        self.failed_frame = failed_frame;
+    }
+}
+
+/// One pass of an offline run in [`RunRecord::passes`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PassRecord {
+    /// The provenance of the pass's maps (`null` for an unweighted pass).
+    pub maps: Option<Value>,
+    /// The pass's counters.
+    pub stats: PassStats,
+}
+
+/// The SLAM weighting of an offline run (`run.json` → `dynapix`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WeightingRecord {
+    /// The weighting (`Debug` name).
+    pub weighting: String,
+    /// γ_add.
+    pub gamma_add: f32,
+    /// γ_del.
+    pub gamma_del: f32,
+    /// The map-point probability update rule (`Debug` name).
+    pub update: String,
+    /// The clamp of the bundle-adjustment weights, when the weighting has one.
+    pub ba_weight_clamp: Option<(f64, f64)>,
+    /// The threshold of a thresholding method (γ_add), else `null`.
+    pub threshold: Option<f32>,
+}
+
+/// The sequence as a run read it (`run.json` → `sequence`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SequenceRecord {
+    /// The folder.
+    pub dir: PathBuf,
+    /// Number of frames.
+    pub frames: usize,
+    /// Where the frame list came from.
+    pub frame_list: FrameList,
+    /// A hash of the frame list (times and paths).
+    pub frames_hash: String,
+    /// Time of the first frame (s).
+    pub first_t: Option<f64>,
+    /// Time of the last frame (s).
+    pub last_t: Option<f64>,
+    /// Depth units per metre.
+    pub depth_factor: f64,
+    /// The folder has a `groundtruth.txt`.
+    pub groundtruth: bool,
+    /// How the ground truth was read (`null` without one).
+    pub groundtruth_convention: Option<GroundTruthRecord>,
+    /// The camera.
+    pub camera: CameraRecord,
+}
+
+/// How a sequence's `groundtruth.txt` was read.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GroundTruthRecord {
+    /// The file.
+    pub file: PathBuf,
+    /// What the file holds.
+    pub file_holds: String,
+    /// How it was used.
+    pub used_as: String,
+    /// The rule that chose the convention.
+    pub rule: String,
+}
+
+/// The camera of a run as recorded (also part of the first pass's cache key).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraRecord {
+    /// Where the settings came from.
+    pub source: CameraSource,
+    /// Intrinsics and distortion.
+    pub pinhole: dynapix_geometry::PinholeCamera,
+    /// Baseline times fx.
+    pub bf: f64,
+    /// Close/far depth threshold (baselines).
+    pub th_depth: f64,
+    /// Frame rate.
+    pub fps: f64,
+    /// Depth units per metre.
+    pub depth_map_factor: f64,
+    /// The ORB extractor settings.
+    pub orb: OrbRecord,
+    /// The image size was taken from the first frame.
+    pub size_from_frames: bool,
+}
+
+/// The ORB extractor settings of a camera record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OrbRecord {
+    /// Features per image.
+    pub n_features: usize,
+    /// Scale between pyramid levels.
+    pub scale_factor: f64,
+    /// Pyramid levels.
+    pub n_levels: usize,
+    /// Initial FAST threshold.
+    pub ini_th_fast: u32,
+    /// Fallback FAST threshold.
+    pub min_th_fast: u32,
+}
+
+/// `motion.json`: the record of a folder of motion (or rigidity) maps.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MotionRecord {
+    /// The sequence folder the maps belong to.
+    pub sequence: PathBuf,
+    /// Everything that determines the maps (its hash keys the cache folder).
+    pub config: Value,
+    /// Whether every map has been written.
+    pub status: MapsStatus,
+    /// What the computation reported (frames, seconds, threads, …; `null` while running).
+    pub results: Value,
+    /// Size and checksum of every map file, by file name (a complete record).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub files: Option<BTreeMap<String, FileFingerprint>>,
+}
+
+impl MotionRecord {
+    /// The record file of a map folder (`motion.json`).
+    pub const FILE: &'static str = MOTION_RECORD_FILE;
+
+    /// Whether the record's `config` is `config` (compared after the same JSON text round
+    /// trip the record went through: the parser may read a number one unit in the last place
+    /// away from the value that was written).
+    pub fn describes(&self, config: &Value) -> bool {
+        self.config == crate::store::as_read_back(config)
+    }
+
+    /// The record in the map folder `dir`, when it has one.
+    pub fn read_in(dir: &Path) -> Option<Result<Self>> {
+        let path = dir.join(MOTION_RECORD_FILE);
+        let text = std::fs::read_to_string(&path).ok()?;
+        Some(
+            serde_json::from_str(&text)
+                .map_err(|e| Error::file(&path, format!("not a motion record: {e}"))),
+        )
+    }
+
+    /// Writes the record into the map folder `dir` atomically (pretty JSON).
+    pub fn write_in(&self, dir: &Path) -> Result<()> {
+        write_pretty(&dir.join(MOTION_RECORD_FILE), self)
+    }
+
+    /// Whether the record says its maps were made with ground-truth poses (`None` when it
+    /// does not say).
+    pub fn uses_ground_truth(&self) -> Option<bool> {
+        let poses = self.config.get("poses")?;
+        if let Some(src) = poses.pointer("/origin/source").and_then(Value::as_str) {
+            return Some(src == "ground_truth");
+        }
+        // Records written before provenance was structured: `"source": "gt" | "file"`.
+        match poses.get("source").and_then(Value::as_str)? {
+            "gt" => Some(true),
+            "file" => Some(false),
+            _ => None,
+        }
+    }
+}
+
+/// The state of a map folder's computation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapsStatus {
+    /// Being computed (or interrupted).
+    Running,
+    /// Every map written and listed in `files`.
+    Complete,
+}
+
+/// Size and FNV-64 checksum of a file, as cache records list them.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileFingerprint {
+    /// Size in bytes.
+    pub bytes: usize,
+    /// FNV-64 of the bytes (16 hex digits).
+    pub fnv64: String,
+}
+
+impl FileFingerprint {
+    /// The fingerprint of `bytes`.
+    pub fn of(bytes: &[u8]) -> Self {
+        Self {
+            bytes: bytes.len(),
+            fnv64: crate::hash::Fnv64::of(bytes),
+        }
+    }
+}
+
+/// Writes `value` as pretty JSON to `path` atomically.
+fn write_pretty(path: &Path, value: &impl Serialize) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::file(path, e.to_string()))?;
+    dynapix_io::write_atomic(path, text.as_bytes())?;
+    Ok(())
+}

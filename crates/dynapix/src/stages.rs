@@ -1,0 +1,10 @@
+//! The single stages of a run, for tools that run one of them on its own (`dynapix motion`
+//! computes and keeps a sequence's maps, `dynapix slam` runs one pass with its own outputs):
+//! a map job and its folder, a SLAM session and one pass, the frame poses the maps are made
+//! with. A whole run goes through [`crate::OfflineRunner`] or [`crate::run_online`] instead.
+
+pub use crate::cues::RigidityJob;
+pub use crate::maps::{CacheCheck, MapFolder, MapJob, MapSet, compute_into};
+pub use crate::offline::folder_writable;
+pub use crate::poses::{FramePoses, PoseOrigin};
+pub use crate::slam::{MapLoad, MapSave, PassWeights, SlamSession, load_vocabulary, run_pass};
