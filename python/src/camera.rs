@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use dynapix::{Camera as LibCamera, CameraChoice, CameraPreset, CameraSource, SequenceConfig};
 use dynapix::Settings;
+use dynapix::{Camera as LibCamera, CameraChoice, CameraPreset, CameraSource, SequenceConfig};
 use pyo3::prelude::*;
 use pyo3::types::PyString;
 

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Input, Progress, ProgressEvent};
 use dynapix::{FrameStatus, Trajectory};
+use dynapix::{OfflineRunner, RunOptions};
 use numpy::{PyArray1, PyArray3};
 use pyo3::prelude::*;
 use serde_json::{Value, json};
@@ -329,10 +329,12 @@ impl RunResult {
                 compute(py, move || dynapix::evaluate::read_ground_truth(&p))?
             }
         };
-        let written = guard(|| Ok(dynapix::Trajectory::parse_tum(
-            &self.trajectory.to_tum_string(),
-            std::path::Path::new("<trajectory>"),
-        )?))?;
+        let written = guard(|| {
+            Ok(dynapix::Trajectory::parse_tum(
+                &self.trajectory.to_tum_string(),
+                std::path::Path::new("<trajectory>"),
+            )?)
+        })?;
         let est: Vec<_> = written.poses.iter().map(|p| (p.t, p.pose)).collect();
         let args = EvalArgs::new(sim3, rpe_seconds, rpe_frames, max_diff)?;
         evaluation::report(py, gt, est, Some(self.frame_stamps.clone()), args)
@@ -376,7 +378,8 @@ pub fn run(
     let input = open_input(py, &seq_dir, &config, camera, association.as_deref())?;
     // As `dynapix run`: without a folder given, the sequence's own cache (or one under the
     // user cache directory when the sequence may not be written).
-    let cache = cache.unwrap_or_else(|| dynapix::RunOptions::default_cache_dir(&input.sequence.dir));
+    let cache =
+        cache.unwrap_or_else(|| dynapix::RunOptions::default_cache_dir(&input.sequence.dir));
     let options = RunOptions {
         cache_dir: Some(cache),
         recompute_maps,

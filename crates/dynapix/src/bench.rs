@@ -14,8 +14,8 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::input::Input;
 use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
-pub use crate::profile::{Profile, StageProfiler, StageTime, retain_freed_memory};
 use crate::profile::process_usage;
+pub use crate::profile::{Profile, StageProfiler, StageTime, retain_freed_memory};
 use crate::progress::Progress;
 use crate::stream::{online_masks, run_online};
 

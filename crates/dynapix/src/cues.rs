@@ -27,11 +27,11 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 
 use crate::error::{Error, Result};
-use crate::record::MapsStatus;
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+use crate::record::MapsStatus;
 use crate::store::{MapFolder, MapSet, MapSink};
 
 /// Version of the rigidity computation, part of its cache key.

@@ -31,13 +31,14 @@ use crate::combine::FrameCues;
 use crate::config::{Config, Cues, FlowPreset};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
-use crate::record::MapsStatus;
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
+use crate::record::MapsStatus;
+pub(crate) use crate::record::as_read_back;
 use crate::store::MapSink;
-pub use crate::store::{CacheCheck, MapFolder, MapSet, as_read_back};
+pub use crate::store::{CacheCheck, MapFolder, MapSet};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting

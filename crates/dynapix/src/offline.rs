@@ -36,10 +36,10 @@ use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
-use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
 use crate::method::{Method, Terms};
 use crate::poses::{FramePoses, PoseOrigin, as_written};
 use crate::progress::Progress;
+use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
 use crate::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
 
 /// Version of the SLAM passes, part of the first-pass cache key: bump it when a change of

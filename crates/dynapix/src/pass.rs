@@ -104,11 +104,16 @@ pub struct PassOutput {
     pub skipped: Vec<BadFrame>,
 }
 
+/// `traj` as it reads back from its TUM text (what a pass leaves in `trajectory.txt`).
+pub(crate) fn as_written(traj: &Trajectory) -> Result<Trajectory, dynapix_io::IoError> {
+    Trajectory::parse_tum(&traj.to_tum_string(), std::path::Path::new("<trajectory>"))
+}
+
 impl PassOutput {
     /// The trajectory as it reads back from its TUM text (what the pass leaves in
     /// `trajectory.txt`).
-    pub fn written_trajectory(&self) -> crate::error::Result<Trajectory> {
-        crate::poses::as_written(&self.trajectory)
+    pub fn written_trajectory(&self) -> Result<Trajectory, dynapix_io::IoError> {
+        as_written(&self.trajectory)
     }
 }
 

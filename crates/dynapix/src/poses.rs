@@ -31,10 +31,7 @@ pub fn pose_at(traj: &Trajectory, t: f64, max_gap: f64) -> Option<Se3> {
 
 /// `traj` as it reads back from its TUM text (what a pass leaves in `trajectory.txt`).
 pub fn as_written(traj: &Trajectory) -> Result<Trajectory> {
-    Ok(Trajectory::parse_tum(
-        &traj.to_tum_string(),
-        std::path::Path::new("<trajectory>"),
-    )?)
+    Ok(crate::pass::as_written(traj)?)
 }
 
 /// A pose for every frame time in `stamps` from a (possibly incomplete) trajectory: tracked

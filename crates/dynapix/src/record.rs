@@ -15,9 +15,7 @@ use dynapix_io::FrameList;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::input::{CameraSource, Input};
 use crate::pass::{BadFrame, PassStats};
 
 /// The record file of a map folder.
@@ -105,59 +103,10 @@ pub struct RunRecord {
 }
 
 impl RunRecord {
-    /// The record of an online run of `config` over `input` (with DynaPix+ `masks`), before
-    /// any frame.
-    pub fn online(input: &Input, config: &Config, masks: Option<&Path>) -> Self {
-        let outputs = [
-            (
-                "trajectory.txt",
-                "poses as reported when each frame was processed",
-            ),
-            (
-                "trajectory_refined.txt",
-                "the system's final estimate of every tracked frame",
-            ),
-        ];
-        Self {
-            sequence: input.record(),
-            method: config.method.name().to_string(),
-            mode: config.mode.name().to_string(),
-            schedule: Some("online".into()),
-            cues: None,
-            first_pass_kind: None,
-            weighted_passes: None,
-            oracle_poses: None,
-            ground_truth_used_at_run_time: Some(false),
-            loop_closing: None,
-            masks: masks.map(Path::to_path_buf),
-            dynapix: None,
-            config: config.to_json_value(),
-            outputs: Some(
-                outputs
-                    .iter()
-                    .map(|(k, v)| (k.to_string(), v.to_string()))
-                    .collect(),
-            ),
-            first_pass: None,
-            prob: None,
-            passes: None,
-            nothing_tracked: None,
-            runs: None,
-            seed: None,
-            earlier_passes: None,
-            skipped_frames: None,
-            results: None,
-            complete: None,
-            error: None,
-            failed_frame: None,
-        }
-    }
-
     /// The record of the `run.json` at `path`.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text =
-            std::fs::read_to_string(path).map_err(|e| dynapix_io::IoError::io(path, e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| dynapix_io::IoError::io(path, e))?;
         serde_json::from_str(&text).map_err(|e| Error::file(path, format!("not a run record: {e}")))
     }
 
@@ -266,6 +215,36 @@ pub struct CameraRecord {
     pub size_from_frames: bool,
 }
 
+/// Where the camera of a run came from (recorded in outputs).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "source", rename_all = "snake_case")]
+pub enum CameraSource {
+    /// A settings file given by the caller.
+    SettingsFile {
+        /// The file.
+        path: PathBuf,
+        /// Keys that took the TUM values.
+        missing_keys: Vec<String>,
+    },
+    /// A preset given by the caller.
+    Preset {
+        /// Its name.
+        name: String,
+    },
+    /// The sequence folder's `camera.yaml`.
+    SequenceFile {
+        /// The file.
+        path: PathBuf,
+        /// Keys that took the TUM values.
+        missing_keys: Vec<String>,
+    },
+    /// The preset implied by the folder name or layout.
+    FolderName {
+        /// The preset's name.
+        preset: String,
+    },
+}
+
 /// The ORB extractor settings of a camera record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OrbRecord {
@@ -305,7 +284,7 @@ impl MotionRecord {
     /// trip the record went through: the parser may read a number one unit in the last place
     /// away from the value that was written).
     pub fn describes(&self, config: &Value) -> bool {
-        self.config == crate::store::as_read_back(config)
+        self.config == as_read_back(config)
     }
 
     /// The record in the map folder `dir`, when it has one.
@@ -366,6 +345,13 @@ impl FileFingerprint {
             fnv64: crate::hash::Fnv64::of(bytes),
         }
     }
+}
+
+/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
+/// the last place away from the value that was written, so a record read from a file is
+/// compared with the expected record after the same round trip.
+pub(crate) fn as_read_back(v: &Value) -> Value {
+    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
 }
 
 /// Writes `value` as pretty JSON to `path` atomically.

@@ -221,13 +221,6 @@ pub enum CacheCheck {
     Damaged(String),
 }
 
-/// `v` as it reads back from its JSON text: the JSON parser may read a number one unit in
-/// the last place away from the value that was written, so a record read from a file is
-/// compared with the expected record after the same round trip.
-pub fn as_read_back(v: &Value) -> Value {
-    serde_json::from_str(&v.to_string()).unwrap_or(Value::Null)
-}
-
 /// The maps of a sequence kept in memory, frame by frame, in their stored 16-bit form
 /// (`None`: no map, e.g. a skipped bad frame).
 pub type MemoryMaps = Arc<[Option<Gray16Image>]>;

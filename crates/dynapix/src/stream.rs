@@ -14,6 +14,7 @@ use crate::error::{BadFrame, Error, Result};
 use crate::input::Input;
 use crate::online::{FrameResult, OnlineDynaPix, RgbdFrame};
 use crate::progress::{Progress, Task};
+use crate::record::RunRecord;
 
 /// Frames decoded ahead of the online system by [`run_online`].
 pub const FRAMES_AHEAD: usize = 2;
@@ -199,4 +200,54 @@ pub fn run_online(
     run.keyframes = system.map().num_keyframes();
     run.map_points = system.map().num_points();
     (run, finished)
+}
+
+impl RunRecord {
+    /// The record of an online run of `config` over `input` (with DynaPix+ `masks`), before
+    /// any frame.
+    pub fn online(input: &Input, config: &Config, masks: Option<&Path>) -> Self {
+        let outputs = [
+            (
+                "trajectory.txt",
+                "poses as reported when each frame was processed",
+            ),
+            (
+                "trajectory_refined.txt",
+                "the system's final estimate of every tracked frame",
+            ),
+        ];
+        Self {
+            sequence: input.record(),
+            method: config.method.name().to_string(),
+            mode: config.mode.name().to_string(),
+            schedule: Some("online".into()),
+            cues: None,
+            first_pass_kind: None,
+            weighted_passes: None,
+            oracle_poses: None,
+            ground_truth_used_at_run_time: Some(false),
+            loop_closing: None,
+            masks: masks.map(Path::to_path_buf),
+            dynapix: None,
+            config: config.to_json_value(),
+            outputs: Some(
+                outputs
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+                    .collect(),
+            ),
+            first_pass: None,
+            prob: None,
+            passes: None,
+            nothing_tracked: None,
+            runs: None,
+            seed: None,
+            earlier_passes: None,
+            skipped_frames: None,
+            results: None,
+            complete: None,
+            error: None,
+            failed_frame: None,
+        }
+    }
 }

@@ -7,8 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Config, Input, Method, NoProgress, Trajectory};
+use dynapix::{OfflineRunner, RunOptions};
 
 fn window() -> Option<PathBuf> {
     let d = PathBuf::from(concat!(

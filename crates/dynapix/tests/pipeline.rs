@@ -10,11 +10,11 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use dynapix::stages::{MapFolder, MapJob, compute_into};
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{
     CameraChoice, Config, FlowPreset, FramePoses, Input, Method, NoProgress, OnlineDynaPix,
     PoseOrigin, PoseSource, RgbdFrame, Trajectory,
 };
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix_synth::{Preset, SceneParams, SynthParams};
 
 const FRAMES: usize = 120;
@@ -398,8 +398,14 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
     // and the motion.json of every map folder the cold run wrote.
     let text = serde_json::to_string_pretty(&cold.record).unwrap();
     let back: dynapix::RunRecord = serde_json::from_str(&text).unwrap();
-    assert_eq!(json(&back), serde_json::from_str::<serde_json::Value>(&text).unwrap());
-    assert_eq!(back.passes.as_ref().map(Vec::len), Some(config.passes.weighted));
+    assert_eq!(
+        json(&back),
+        serde_json::from_str::<serde_json::Value>(&text).unwrap()
+    );
+    assert_eq!(
+        back.passes.as_ref().map(Vec::len),
+        Some(config.passes.weighted)
+    );
     let mut folders = 0;
     for e in std::fs::read_dir(&cache).unwrap() {
         let path = e.unwrap().path().join("motion.json");
@@ -432,7 +438,10 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
     let none = none.unwrap();
     assert_eq!(before, after, "the sequence folder was written to");
     assert_eq!(json(&none.record)["prob"]["source"], "computed (no cache)");
-    assert_eq!(json(&none.record)["first_pass"]["source"], "computed (no cache)");
+    assert_eq!(
+        json(&none.record)["first_pass"]["source"],
+        "computed (no cache)"
+    );
     assert!(none.maps.iter().all(|m| m.dir().is_none()));
     assert_eq!(none.passes.len(), config.passes.weighted);
     // The same trajectories to the bit: fresh, cached and folder-less runs read the same
@@ -473,7 +482,10 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     // Same configuration: maps and first pass come from the cache, same trajectory.
     let again = offline(&config, &input, &cache);
     assert_eq!(json(&again.record)["prob"]["source"], "cache (key matched)");
-    assert_eq!(json(&again.record)["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(
+        json(&again.record)["first_pass"]["source"],
+        "cache (key matched)"
+    );
     assert_eq!(
         again.final_pass().unwrap().trajectory,
         first.final_pass().unwrap().trajectory
@@ -485,7 +497,10 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
     changed.motion.params.movable.clip_hi += 5.0;
     let c = offline(&changed, &input, &cache);
     assert_eq!(json(&c.record)["prob"]["source"], "computed");
-    assert_eq!(json(&c.record)["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(
+        json(&c.record)["first_pass"]["source"],
+        "cache (key matched)"
+    );
     assert_ne!(c.maps[0].dir().unwrap(), dir1);
     // Another first pass (SLAM parameters changed) is run, not taken from the cache.
     let mut slam = config.clone();
@@ -610,7 +625,10 @@ fn a_damaged_cache_is_found_and_recomputed() {
     assert_eq!(r.final_pass().unwrap().trajectory, reference);
     // Intact again: reused.
     let r = offline(&config, &input, &cache);
-    assert_eq!(json(&r.record)["first_pass"]["source"], "cache (key matched)");
+    assert_eq!(
+        json(&r.record)["first_pass"]["source"],
+        "cache (key matched)"
+    );
     assert_eq!(json(&r.record)["prob"]["source"], "cache (key matched)");
 }
 

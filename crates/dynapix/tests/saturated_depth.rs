@@ -9,8 +9,8 @@ mod common;
 use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Config, Input, NoProgress, OnlineDynaPix, RgbdFrame, Trajectory};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix_io::FrameStatus;
 use dynapix_synth::{Preset, SceneParams, SynthParams};
 

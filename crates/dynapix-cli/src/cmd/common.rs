@@ -306,7 +306,9 @@ pub fn incomplete(e: &anyhow::Error) -> serde_json::Value {
 pub fn stop_reason(e: &anyhow::Error) -> (String, Option<dynapix::BadFrame>) {
     (
         report(e),
-        library_error(e).and_then(dynapix::Error::bad_frame).cloned(),
+        library_error(e)
+            .and_then(dynapix::Error::bad_frame)
+            .cloned(),
     )
 }
 

@@ -10,8 +10,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{CameraChoice, Config, Input, Method, Progress, ProgressEvent};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix_eval::{RunResult, SequenceSummary, paper_table};
 use rayon::prelude::*;
 

@@ -16,8 +16,8 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use dynapix::stages::{FramePoses, MapFolder, MapJob, PoseOrigin};
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::{BackgroundSource, FlowPreset, Mode, PoseSource};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix_io::{MotionProbability, StampedPose, Trajectory};
 use dynapix_motion::metrics::{RocAccumulator, psnr_masked};
 use dynapix_motion::{FloatImage, Variant};
@@ -317,7 +317,12 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     if args.save_background && reconstructs {
         std::fs::create_dir_all(&bgrec_dir)?;
     }
-    folder.write_record(&input, &record, dynapix::MapsStatus::Running, serde_json::Value::Null)?;
+    folder.write_record(
+        &input,
+        &record,
+        dynapix::MapsStatus::Running,
+        serde_json::Value::Null,
+    )?;
 
     let map_path = |i: usize| folder.map_path(&input, i);
     let todo: Vec<usize> = (0..n)

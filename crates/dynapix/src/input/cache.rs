@@ -77,8 +77,7 @@ impl DecodedFrames {
 
     /// Starts (`true`) or stops keeping frames; stopping frees them.
     pub(crate) fn set_enabled(&self, on: bool) {
-        self.enabled
-            .store(on, std::sync::atomic::Ordering::Relaxed);
+        self.enabled.store(on, std::sync::atomic::Ordering::Relaxed);
         if !on && let Ok(mut k) = self.kept.lock() {
             *k = (0, HashMap::new());
         }

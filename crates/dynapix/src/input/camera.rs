@@ -9,7 +9,7 @@ use dynapix_slam::orb::OrbParams;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::record::{CameraRecord, OrbRecord};
+use crate::record::{CameraRecord, CameraSource, OrbRecord};
 
 /// Camera presets (ORB-SLAM2 settings files).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
@@ -73,36 +73,6 @@ pub enum CameraChoice {
     Settings(PathBuf),
 }
 
-/// Where the camera of a run came from (recorded in outputs).
-#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
-#[serde(tag = "source", rename_all = "snake_case")]
-pub enum CameraSource {
-    /// A settings file given by the caller.
-    SettingsFile {
-        /// The file.
-        path: PathBuf,
-        /// Keys that took the TUM values.
-        missing_keys: Vec<String>,
-    },
-    /// A preset given by the caller.
-    Preset {
-        /// Its name.
-        name: String,
-    },
-    /// The sequence folder's `camera.yaml`.
-    SequenceFile {
-        /// The file.
-        path: PathBuf,
-        /// Keys that took the TUM values.
-        missing_keys: Vec<String>,
-    },
-    /// The preset implied by the folder name or layout.
-    FolderName {
-        /// The preset's name.
-        preset: String,
-    },
-}
-
 /// The camera of a run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
@@ -163,4 +133,3 @@ impl Camera {
         }
     }
 }
-

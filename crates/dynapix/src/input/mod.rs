@@ -21,8 +21,9 @@ mod cache;
 mod camera;
 mod read_ahead;
 
+pub use crate::record::CameraSource;
 use cache::DecodedFrames;
-pub use camera::{Camera, CameraChoice, CameraPreset, CameraSource};
+pub use camera::{Camera, CameraChoice, CameraPreset};
 
 /// A sequence opened for a run.
 #[derive(Clone, Debug)]
@@ -253,7 +254,10 @@ impl Input {
 
     /// The depth image of frame `i` as stored (raw 16-bit units, before the depth factor and
     /// the validity rule).
-    pub fn load_depth_raw(&self, i: usize) -> Result<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
+    pub fn load_depth_raw(
+        &self,
+        i: usize,
+    ) -> Result<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
         let path = &self.sequence.info(i)?.depth;
         Ok(dynapix_io::images::read_depth_raw(path)?)
     }
