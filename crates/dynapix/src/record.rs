@@ -144,16 +144,16 @@ pub struct PassRecord {
 pub struct WeightingRecord {
     /// The weighting (`Debug` name).
     pub weighting: String,
-    /// γ_add.
-    pub gamma_add: f32,
-    /// γ_del.
-    pub gamma_del: f32,
+    /// γ_add (the parameter's `f32` value, widened).
+    pub gamma_add: f64,
+    /// γ_del (the parameter's `f32` value, widened).
+    pub gamma_del: f64,
     /// The map-point probability update rule (`Debug` name).
     pub update: String,
     /// The clamp of the bundle-adjustment weights, when the weighting has one.
     pub ba_weight_clamp: Option<(f64, f64)>,
-    /// The threshold of a thresholding method (γ_add), else `null`.
-    pub threshold: Option<f32>,
+    /// The threshold of a thresholding method (γ_add, widened), else `null`.
+    pub threshold: Option<f64>,
 }
 
 /// The sequence as a run read it (`run.json` → `sequence`).
