@@ -1,5 +1,5 @@
 //! One measured run of a method on a sequence (`dynapix bench`): wall and CPU time, frames
-//! per second, peak memory and where the time went, stage by stage ([`crate::profile`]).
+//! per second, peak memory and where the time went, stage by stage ([`StageProfiler`]).
 //!
 //! An offline bench computes everything (first pass, rigidity maps, motion maps, every pass)
 //! in memory without a cache, so nothing is reused from an earlier run; an online bench

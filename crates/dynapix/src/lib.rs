@@ -5,18 +5,21 @@
 //! - [`Config`]: the one configuration (method, paper/reference [`Mode`], sequence reading,
 //!   motion maps and their [`Cues`], SLAM, passes, online schedule), serde with the paper's
 //!   defaults, loadable from JSON or YAML.
-//! - [`cues`]: the cues beyond the paper's terms on a sequence (pose-free rigidity maps, cached
-//!   once per sequence; the geometric cue's inputs).
+//! - the cues beyond the paper's terms on a sequence (pose-free rigidity maps, cached once per
+//!   sequence; the geometric cue's inputs), switched by [`Cues`].
 //! - [`OfflineRunner`]: sequence → first pass → motion maps → weighted pass(es), in process
-//!   and in memory (the maps in their stored 16-bit form, [`store`]), with an optional cache
+//!   and in memory (the maps in their stored 16-bit form), with an optional cache
 //!   keyed by everything that determines the maps (written as a side effect, reused when the
-//!   key matches; without one nothing is written) and a provenance record of every input.
-//! - [`combine`]: the one place where a frame's cues become P (offline and online).
+//!   key matches; without one nothing is written) and a provenance record of every input
+//!   ([`RunRecord`], `run.json`; a map folder's [`MotionRecord`], `motion.json`).
+//! - one combiner turns a frame's cues into P (offline and online).
 //! - [`run_online`]: the one online driver of a sequence folder (frames read ahead, DynaPix+
 //!   masks, bad frames, statistics), used by `dynapix run --online` and `dynapix bench`.
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
-//! - [`bench`](mod@bench) and [`profile`]: one measured run, stage by stage (`dynapix bench`).
+//! - [`bench`](mod@bench): one measured run, stage by stage (`dynapix bench`).
+//! - [`stages`]: the single stages (a map job, one SLAM pass) for tools that run one alone.
+//! - [`evaluate`] and [`synthetic`]: ATE/RPE of trajectories; synthetic sequences.
 //! - [`MotionProbability`] and [`StaticWeights`]: P and w = 1 − P as distinct types.
 //!
 //! Streaming a sequence folder through the online mode:

@@ -104,7 +104,7 @@ pub struct FramePoses {
 }
 
 impl FramePoses {
-    /// Looks up every frame time of `stamps` in `traj` ([`pose_at`] within `max_gap`); frames
+    /// Looks up every frame time of `stamps` in `traj` (`pose_at` within `max_gap`); frames
     /// without a pose get the identity and are listed in the second value.
     pub fn lookup(
         traj: &Trajectory,

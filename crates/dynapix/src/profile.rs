@@ -200,9 +200,9 @@ pub const HEAP_ALLOCATION_LIMIT: usize = 32 << 20;
 /// instead of returning it to the kernel: 1 GiB.
 pub const RETAINED_FREE_MEMORY: usize = 1 << 30;
 
-/// Tells glibc's allocator to keep freed memory for reuse: allocations up to
-/// [`HEAP_ALLOCATION_LIMIT`] come from its heaps instead of fresh `mmap`s, and free memory up
-/// to [`RETAINED_FREE_MEMORY`] stays there instead of being returned to the kernel.
+/// Tells glibc's allocator to keep freed memory for reuse: allocations up to 32 MiB
+/// (`HEAP_ALLOCATION_LIMIT`) come from its heaps instead of fresh `mmap`s, and free memory up
+/// to 1 GiB (`RETAINED_FREE_MEMORY`) stays there instead of being returned to the kernel.
 ///
 /// A DynaPix run allocates and frees images, flows and pyramids of one to a few megabytes per
 /// frame on every thread. With glibc's defaults many of them are mapped and unmapped each

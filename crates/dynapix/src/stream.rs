@@ -124,7 +124,7 @@ fn load_frame(input: &Input, i: usize, masks: Option<&Path>) -> Result<RgbdFrame
 }
 
 /// Pushes every frame of `input` through a new [`OnlineDynaPix`] of `config`, reading them
-/// on a reader thread up to [`FRAMES_AHEAD`] frames ahead; a frame already read is shown to
+/// on a reader thread up to `FRAMES_AHEAD` (2) frames ahead; a frame already read is shown to
 /// the push before it ([`OnlineDynaPix::push_before`], the same results). DynaPix+ reads its
 /// masks from `masks` ([`online_masks`]). A frame whose files cannot be used is skipped
 /// (listed in [`OnlineRun::skipped`]) when `input` skips bad frames, else it stops the run.

@@ -447,7 +447,7 @@ impl Default for PassConfig {
     }
 }
 
-/// The online schedule ([`crate::online`]).
+/// The online schedule ([`crate::OnlineDynaPix`], [`crate::run_online`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct OnlineConfig {
