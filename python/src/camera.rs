@@ -185,7 +185,9 @@ impl Camera {
 
     /// Everything a run records about the camera (source, pinhole, ``bf``, ORB settings).
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_python(py, &self.inner.record())
+        let v = serde_json::to_value(self.inner.record())
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
+        to_python(py, &v)
     }
 
     /// The ORB-SLAM2 settings YAML text of the camera.

@@ -267,7 +267,9 @@ impl RunResult {
     /// The provenance record (what ``dynapix run`` writes to ``run.json``).
     #[getter]
     fn record<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_python(py, &self.record)
+        let v = serde_json::to_value(&self.record)
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
+        to_python(py, &v)
     }
 
     /// Folder of the final pass's motion maps (None for a method without maps).

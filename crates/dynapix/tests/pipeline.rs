@@ -5,19 +5,24 @@
 //! Run in release mode (`cargo test --release`).
 
 mod common;
-use common::{ate, copy_dir, json};
+use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use dynapix::stages::{MapFolder, MapJob, compute_into};
+use dynapix::stages::{FramePoses, MapFolder, MapJob, PoseOrigin, compute_into};
 use dynapix::{
-    CameraChoice, Config, FlowPreset, FramePoses, Input, Method, NoProgress, OnlineDynaPix,
-    PoseOrigin, PoseSource, RgbdFrame, Trajectory,
+    CameraChoice, Config, FlowPreset, Input, Method, NoProgress, OnlineDynaPix, PoseSource,
+    RgbdFrame, Trajectory,
 };
 use dynapix::{OfflineRunner, RunOptions};
 use dynapix_synth::{Preset, SceneParams, SynthParams};
 
 const FRAMES: usize = 120;
+
+/// A record as its JSON value (the keys `run.json` has).
+fn json<T: serde::Serialize>(v: &T) -> serde_json::Value {
+    serde_json::to_value(v).unwrap()
+}
 
 /// The sequence, generated once per test binary (walking_rpy: the camera turns while two
 /// people walk through the view; ORB-SLAM2 is pulled by them).

@@ -25,8 +25,3 @@ pub fn ate(seq: &Path, traj: &Trajectory) -> f64 {
     let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default()).unwrap();
     ev.ate.stats.rmse
 }
-
-/// A record as its JSON value (the keys `run.json` has).
-pub fn json<T: serde::Serialize>(v: &T) -> serde_json::Value {
-    serde_json::to_value(v).unwrap()
-}
