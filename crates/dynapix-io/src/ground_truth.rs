@@ -208,11 +208,14 @@ impl GroundTruth {
 }
 
 /// Reads a TUM-format ground-truth file in `frame`, deciding its convention with
-/// [`GroundTruthConvention::of_file`].
+/// [`GroundTruthConvention::of_file`]: the one ground-truth reader (sequences, evaluation,
+/// pose sources). It is strict ([`Trajectory::read_tum_strict`]): a timestamp given twice
+/// with poses further apart than one sample's noise is an error naming both lines, since
+/// either pose would change a score; closer duplicates keep the later line.
 pub fn read_ground_truth(path: impl AsRef<Path>, frame: GtFrame) -> Result<GroundTruth> {
     let path = path.as_ref();
     let convention = GroundTruthConvention::of_file(path);
-    let raw = Trajectory::read_tum(path)?;
+    let raw = Trajectory::read_tum_strict(path)?;
     Ok(GroundTruth {
         trajectory: convention.trajectory_in(raw, frame),
         convention,
