@@ -179,9 +179,18 @@ mod tests {
     fn failures_are_recorded_with_the_tracking_rate_when_it_means_something() {
         let gt = line(201, 0.01, 1.0);
         // No pose: the message names the source.
-        let s = score_run(&gt, &[], Path::new("d/trajectory.txt"), None, &EvalParams::default());
+        let s = score_run(
+            &gt,
+            &[],
+            Path::new("d/trajectory.txt"),
+            None,
+            &EvalParams::default(),
+        );
         let e = s.run.result.error.expect("error");
-        assert!(e.contains("d/trajectory.txt") && e.contains("no poses"), "{e}");
+        assert!(
+            e.contains("d/trajectory.txt") && e.contains("no poses"),
+            "{e}"
+        );
         assert!(s.evaluation.is_none() && s.run.motionless_floor_m.is_none());
         // Two poses: too few for an ATE, but they tracked a tenth of the reference frames.
         let est = line(2, 0.01, 1.0);

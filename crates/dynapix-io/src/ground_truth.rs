@@ -377,11 +377,15 @@ mod tests {
         let e = read_ground_truth(&path, GtFrame::Camera)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("groundtruth.txt:3") && e.contains("line 2"), "{e}");
-        let e = crate::Sequence::open(dir)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("groundtruth.txt:3") && e.contains("line 2"), "{e}");
+        assert!(
+            e.contains("groundtruth.txt:3") && e.contains("line 2"),
+            "{e}"
+        );
+        let e = crate::Sequence::open(dir).unwrap_err().to_string();
+        assert!(
+            e.contains("groundtruth.txt:3") && e.contains("line 2"),
+            "{e}"
+        );
     }
 
     /// The first pose of the Bonn `crowd` ground truth against the camera pose computed

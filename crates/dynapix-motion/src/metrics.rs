@@ -349,8 +349,14 @@ mod tests {
             })
             .collect();
         // Frame 1: perfect; frame 2: P = 0.4 on the moving pixels (missed at 0.5).
-        let perfect: Vec<f32> = mask.iter().map(|&m| if m == MOVING { 0.9 } else { 0.1 }).collect();
-        let weak: Vec<f32> = mask.iter().map(|&m| if m == MOVING { 0.4 } else { 0.1 }).collect();
+        let perfect: Vec<f32> = mask
+            .iter()
+            .map(|&m| if m == MOVING { 0.9 } else { 0.1 })
+            .collect();
+        let weak: Vec<f32> = mask
+            .iter()
+            .map(|&m| if m == MOVING { 0.4 } else { 0.1 })
+            .collect();
         let mut a = MaskEvaluation::new();
         a.add_map(&perfect, &mask);
         let mut b = MaskEvaluation::new();
@@ -362,8 +368,14 @@ mod tests {
         assert_eq!(s.roc_auc, Some(1.0));
         assert_eq!(s.iou_p_gt_0_5, Some(0.5));
         assert_eq!(s.best_iou, Some(1.0));
-        assert!(s.best_iou_threshold.is_some_and(|t| (0.1..0.4).contains(&t)));
-        assert!(s.background_psnr_in_movers_db.is_none(), "no background added");
+        assert!(
+            s.best_iou_threshold
+                .is_some_and(|t| (0.1..0.4).contains(&t))
+        );
+        assert!(
+            s.background_psnr_in_movers_db.is_none(),
+            "no background added"
+        );
         // Backgrounds: the truth is grey 100; the reconstruction is off by 10 on every mover,
         // the frame (the mover itself) by 100 on the moving part and agrees on the parked one.
         let truth = RgbImage::from_pixel(w, h, image::Rgb([100, 100, 100]));

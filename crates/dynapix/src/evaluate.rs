@@ -143,7 +143,9 @@ pub fn score_run(
     };
     if gt.is_empty() {
         return Err(eval_error(EvalError::Empty {
-            path: sequence.dir.join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
+            path: sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
         }));
     }
     Ok(Some(dynapix_eval::run::score_written(
@@ -167,7 +169,9 @@ pub fn ate_and_floor(sequence: &Sequence, trajectory: &Trajectory) -> Result<Opt
     }
     if gt.is_empty() {
         return Err(eval_error(EvalError::Empty {
-            path: sequence.dir.join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
+            path: sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
         }));
     }
     let ev = dynapix_eval::evaluate(

@@ -81,7 +81,9 @@ pub fn from_source(
 ) -> Result<(FramePoses, Vec<usize>)> {
     match source {
         PoseSource::GroundTruth => {
-            let path = sequence.dir.join(dynapix_io::ground_truth::GROUNDTRUTH_FILE);
+            let path = sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE);
             let gt = sequence.groundtruth.as_ref().ok_or_else(|| {
                 Error::Input(format!(
                     "ground-truth poses asked for, but {} does not exist",
