@@ -5,17 +5,19 @@
 
 use crate::aggregate::{MethodSummary, PaperTable, RunResult, summarize_with_floors};
 use crate::error::{EvalError, Result};
-use crate::report::{EvalParams, evaluate};
+use crate::report::EvalParams;
 use dynapix_geometry::Se3;
-use dynapix_io::{GroundTruthConvention, GtFrame};
+use dynapix_io::{GroundTruth, GtFrame};
 use std::path::{Path, PathBuf};
+
+pub use crate::run::RunEvaluation;
 
 /// Reads a TUM trajectory (`timestamp tx ty tz qx qy qz qw`, `#` comments, commas/tabs).
 /// A timestamp given twice with different poses is an error naming both lines, an empty file
 /// is an error saying so ([`check_trajectory_file`]).
 pub fn read_trajectory(path: &Path) -> Result<Vec<(f64, Se3)>> {
     let t = check_trajectory_file(path)?;
-    Ok(t.poses.into_iter().map(|p| (p.t, p.pose)).collect())
+    Ok(t.pairs())
 }
 
 /// Reads a trajectory file for scoring: refuses a timestamp given twice with different poses
@@ -30,22 +32,18 @@ pub fn check_trajectory_file(path: &Path) -> Result<dynapix_io::Trajectory> {
     Ok(t)
 }
 
-/// Reads a ground-truth file in `frame` ([`dynapix_io::read_ground_truth`]: the marker poses
-/// of a Bonn `groundtruth.txt` are converted to camera poses for [`GtFrame::Camera`]).
-/// Returns the poses and what the file holds.
-pub fn read_ground_truth(
-    path: &Path,
-    frame: GtFrame,
-) -> Result<(Vec<(f64, Se3)>, GroundTruthConvention)> {
-    check_trajectory_file(path)?;
+/// Reads a ground-truth file in `frame` ([`dynapix_io::read_ground_truth`], the one reader:
+/// duplicate timestamps refused unless within one sample's noise, the marker poses of a Bonn
+/// `groundtruth.txt` converted to camera poses for [`GtFrame::Camera`]); a file without any
+/// pose is an error. Returns the poses and how they were read.
+pub fn read_ground_truth(path: &Path, frame: GtFrame) -> Result<(Vec<(f64, Se3)>, GroundTruth)> {
     let gt = dynapix_io::read_ground_truth(path, frame)?;
-    let poses = gt
-        .trajectory
-        .poses
-        .into_iter()
-        .map(|p| (p.t, p.pose))
-        .collect();
-    Ok((poses, gt.convention))
+    if gt.trajectory.is_empty() {
+        return Err(EvalError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok((gt.trajectory.pairs(), gt))
 }
 
 /// Reads a ground-truth file as camera poses: use this, not [`read_trajectory`], for the
@@ -124,69 +122,28 @@ fn file_name(p: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// A run's result with the motionless floor on its pairs. Serialises as the [`RunResult`]
-/// fields plus `motionless_floor_m` (what `eval.json` of a run should hold).
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct RunEvaluation {
-    /// The run's figures.
-    #[serde(flatten)]
-    pub result: RunResult,
-    /// ATE RMSE of a motionless camera on the run's pairs, metres (`None` when the ATE could
-    /// not be computed).
-    pub motionless_floor_m: Option<f64>,
-}
-
 /// Evaluates one trajectory file into a [`RunEvaluation`] (its [`RunResult`] and the
-/// motionless floor of the run); errors are recorded, not returned.
+/// motionless floor of the run, [`crate::run::evaluate_run_poses`]); errors, a file that
+/// cannot be read included, are recorded, not returned.
 pub fn evaluate_run(
     gt: &[(f64, Se3)],
     est_path: &Path,
     reference: Option<&[f64]>,
     params: &EvalParams,
 ) -> RunEvaluation {
-    let no_floor = |result| RunEvaluation {
-        result,
-        motionless_floor_m: None,
-    };
-    let name = file_name(est_path);
-    let failed = |e: EvalError, tr: Option<(f64, f64)>| RunResult {
-        name: name.clone(),
-        ate_rmse_m: None,
-        pairs: 0,
-        tracking_rate: tr.map(|x| x.0),
-        missing_time_s: tr.map(|x| x.1),
-        error: Some(e.to_string()),
-    };
-    let est = match read_trajectory(est_path) {
-        Ok(e) => e,
-        Err(e) => return no_floor(failed(e, None)),
-    };
-    match evaluate(gt, &est, reference, params) {
-        Ok(ev) => RunEvaluation {
+    match read_trajectory(est_path) {
+        Ok(est) => crate::run::evaluate_run_poses(gt, &est, est_path, reference, params),
+        Err(e) => RunEvaluation {
             result: RunResult {
-                name: name.clone(),
-                ate_rmse_m: Some(ev.ate.stats.rmse),
-                pairs: ev.ate.stats.count,
-                tracking_rate: ev.tracking.map(|t| t.tracking_rate),
-                missing_time_s: ev.tracking.map(|t| t.missing_time_s),
-                error: None,
+                name: file_name(est_path),
+                ate_rmse_m: None,
+                pairs: 0,
+                tracking_rate: None,
+                missing_time_s: None,
+                error: Some(e.to_string()),
             },
-            motionless_floor_m: Some(ev.motionless_floor()),
+            motionless_floor_m: None,
         },
-        Err(e) => {
-            // ATE failed (e.g. no overlapping stamps): the tracking rate is still meaningful.
-            let tr = reference.and_then(|r| {
-                let est_t: Vec<f64> = est.iter().map(|p| p.0).collect();
-                let tp = crate::tracking::TrackingParams {
-                    window: crate::report::tracking_window(gt, params),
-                    ..params.tracking.clone()
-                };
-                crate::tracking::tracking_rate(r, &est_t, &tp)
-                    .ok()
-                    .map(|t| (t.tracking_rate, t.missing_time_s))
-            });
-            no_floor(failed(e, tr))
-        }
     }
 }
 

@@ -4,7 +4,7 @@
 //! motionless floor (the ATE of a camera that never moves, on the same pairs),
 //! multi-run / multi-sequence tables (Markdown, CSV, JSON) and plots (SVG, PNG).
 //!
-//! The algorithms ([`associate`](mod@associate), [`ate`](mod@ate), [`rpe`](mod@rpe), [`tracking`], [`aggregate`], [`report`])
+//! The algorithms ([`associate`](mod@associate), [`ate`](mod@ate), [`rpe`](mod@rpe), [`tracking`], [`aggregate`], [`report`], [`run`](mod@run))
 //! work on in-memory slices `&[(timestamp, camera-to-world pose)]`; [`files`] and [`plot`]
 //! are the thin file layer.
 
@@ -18,6 +18,7 @@ pub mod files;
 pub mod plot;
 pub mod report;
 pub mod rpe;
+pub mod run;
 pub mod stats;
 pub mod tracking;
 
@@ -29,5 +30,6 @@ pub use ate::{AteParams, AteResult, ate, motionless_floor};
 pub use error::{EvalError, Result};
 pub use report::{EvalParams, Evaluation, Report, evaluate};
 pub use rpe::{RpeDelta, RpeParams, RpeResult, rpe};
+pub use run::{RunEvaluation, RunScore, evaluate_run_poses, score_run};
 pub use stats::ErrorStats;
 pub use tracking::{TrackingParams, TrackingResult, tracking_rate};

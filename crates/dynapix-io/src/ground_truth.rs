@@ -208,11 +208,14 @@ impl GroundTruth {
 }
 
 /// Reads a TUM-format ground-truth file in `frame`, deciding its convention with
-/// [`GroundTruthConvention::of_file`].
+/// [`GroundTruthConvention::of_file`]: the one ground-truth reader (sequences, evaluation,
+/// pose sources). It is strict ([`Trajectory::read_tum_strict`]): a timestamp given twice
+/// with poses further apart than one sample's noise is an error naming both lines, since
+/// either pose would change a score; closer duplicates keep the later line.
 pub fn read_ground_truth(path: impl AsRef<Path>, frame: GtFrame) -> Result<GroundTruth> {
     let path = path.as_ref();
     let convention = GroundTruthConvention::of_file(path);
-    let raw = Trajectory::read_tum(path)?;
+    let raw = Trajectory::read_tum_strict(path)?;
     Ok(GroundTruth {
         trajectory: convention.trajectory_in(raw, frame),
         convention,
@@ -333,6 +336,56 @@ mod tests {
         }
         let e = read_ground_truth(root.path().join("none.txt"), GtFrame::Camera).unwrap_err();
         assert!(e.to_string().contains("none.txt"), "{e}");
+    }
+
+    /// The one reader is strict: a sequence whose ground truth gives one timestamp two poses
+    /// far apart does not open (the message names both lines), one sample written twice
+    /// within its noise keeps the later line, in the reader and in the sequence alike.
+    #[test]
+    fn ground_truth_duplicates_are_refused_unless_within_noise_everywhere() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path();
+        std::fs::create_dir(dir.join("rgb")).unwrap();
+        std::fs::create_dir(dir.join("depth")).unwrap();
+        let mut assoc = String::new();
+        for k in 0..3 {
+            let t = 1.0 + k as f64 * 0.1;
+            image::GrayImage::new(4, 4)
+                .save(dir.join(format!("rgb/{k}.png")))
+                .unwrap();
+            image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(4, 4)
+                .save(dir.join(format!("depth/{k}.png")))
+                .unwrap();
+            assoc.push_str(&format!("{t:.6} rgb/{k}.png {t:.6} depth/{k}.png\n"));
+        }
+        std::fs::write(dir.join("association.txt"), assoc).unwrap();
+        let gt = |second_x: f64| {
+            format!(
+                "1.0 0 0 0 0 0 0 1\n1.1 0.1 0 0 0 0 0 1\n1.1 {second_x} 0 0 0 0 0 1\n1.2 0.2 0 0 0 0 0 1\n"
+            )
+        };
+        let path = dir.join(GROUNDTRUTH_FILE);
+        // 0.5 mm apart: one sample, the later line kept.
+        std::fs::write(&path, gt(0.1005)).unwrap();
+        let read = read_ground_truth(&path, GtFrame::Camera).unwrap();
+        assert_eq!(read.trajectory.len(), 3);
+        assert_eq!(read.trajectory.poses[1].pose.translation.x, 0.1005);
+        let seq = crate::Sequence::open(dir).unwrap();
+        assert_eq!(seq.groundtruth.as_ref(), Some(&read.trajectory));
+        // 5 cm apart: refused by both, naming the lines.
+        std::fs::write(&path, gt(0.15)).unwrap();
+        let e = read_ground_truth(&path, GtFrame::Camera)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("groundtruth.txt:3") && e.contains("line 2"),
+            "{e}"
+        );
+        let e = crate::Sequence::open(dir).unwrap_err().to_string();
+        assert!(
+            e.contains("groundtruth.txt:3") && e.contains("line 2"),
+            "{e}"
+        );
     }
 
     /// The first pose of the Bonn `crowd` ground truth against the camera pose computed

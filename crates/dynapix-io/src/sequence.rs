@@ -31,7 +31,7 @@ use image::{GrayImage, RgbImage};
 use crate::datasets::ASSOCIATION_FILES;
 use crate::depth::{DepthValidity, depth_to_metres_valid};
 use crate::error::{IoError, Result};
-use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame};
+use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame, read_ground_truth};
 use crate::images::{self, DepthImage, ProbMap};
 use crate::settings::{SEQUENCE_SETTINGS_FILE, Settings};
 use crate::trajectory::{DEFAULT_MAX_GAP, Trajectory};
@@ -302,7 +302,7 @@ impl Sequence {
         let gt_path = dir.join(GROUNDTRUTH_FILE);
         let gt_convention = GroundTruthConvention::of_file(&gt_path);
         let groundtruth = if gt_path.is_file() {
-            Some(gt_convention.trajectory_in(Trajectory::read_tum(&gt_path)?, GtFrame::Camera))
+            Some(read_ground_truth(&gt_path, GtFrame::Camera)?.trajectory)
         } else {
             None
         };

@@ -87,6 +87,12 @@ impl Trajectory {
         self.poses.iter().map(|p| p.t).collect()
     }
 
+    /// The poses as `(timestamp, camera-to-world pose)` pairs, in order (what the evaluation
+    /// takes).
+    pub fn pairs(&self) -> Vec<(f64, Se3)> {
+        self.poses.iter().map(|p| (p.t, p.pose)).collect()
+    }
+
     /// Reads a TUM trajectory file (see the module doc for the accepted syntax).
     pub fn read_tum(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
@@ -106,6 +112,11 @@ impl Trajectory {
     pub fn read_tum_strict(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         Self::parse_tum_with(&read_text(path)?, path, true)
+    }
+
+    /// [`Trajectory::read_tum_strict`] of TUM text; `path` is only used in error messages.
+    pub fn parse_tum_strict(text: &str, path: &Path) -> Result<Self> {
+        Self::parse_tum_with(text, path, true)
     }
 
     /// Parses TUM text; with `refuse_conflicts`, the same timestamp with another pose is an

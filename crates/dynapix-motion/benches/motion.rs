@@ -8,7 +8,6 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use dynapix_flow::FlowProvider;
 use dynapix_flow::dis::{DisFlow, Preset};
 use dynapix_geometry::PinholeCamera;
-use dynapix_io::Trajectory;
 use dynapix_motion::background::{ReconstructParams, Source, reconstruct_background};
 use dynapix_motion::moving::to_gray;
 use dynapix_motion::rigidity::{
@@ -40,7 +39,7 @@ fn bench(c: &mut Criterion) {
         return;
     };
     let assoc = dynapix_io::tum::associate_lists(&list, &dlist, 0.0, 0.02);
-    let Ok(traj) = Trajectory::read_tum(dir.join("groundtruth.txt")) else {
+    let Ok(traj) = dynapix_io::camera_trajectory(dir.join("groundtruth.txt")) else {
         eprintln!("skipping: no groundtruth.txt");
         return;
     };

@@ -8,8 +8,8 @@ use std::path::Path;
 use dynapix_eval::{EvalError, EvalParams, RpeParams};
 use dynapix_geometry::Se3;
 
-pub use dynapix_eval::files::RunEvaluation;
-pub use dynapix_eval::{Report as EvalReport, RpeDelta};
+pub use dynapix_eval::{Evaluation, Report as EvalReport, RpeDelta, RunEvaluation, RunScore};
+use dynapix_io::{Sequence, Trajectory};
 
 use crate::{Error, Result};
 
@@ -125,6 +125,63 @@ pub fn evaluate_run_file(gt: &Path, trajectory: &Path, stamps: &[f64]) -> Result
         Some(stamps),
         &EvalParams::default(),
     ))
+}
+
+/// What `dynapix run` writes to `eval.json` for the `trajectory` of a run on `sequence`,
+/// from memory: scored against the sequence's ground truth (camera poses, read once when the
+/// sequence was opened) with its frame stamps for the tracking rate, the trajectory taken
+/// as its TUM file `source` reads back (so the figures are those of the file). `None`
+/// without ground truth; an empty ground truth is an error, an ATE that cannot be computed
+/// is recorded in the result.
+pub fn score_run(
+    sequence: &Sequence,
+    trajectory: &Trajectory,
+    source: &Path,
+) -> Result<Option<RunScore>> {
+    let Some(gt) = &sequence.groundtruth else {
+        return Ok(None);
+    };
+    if gt.is_empty() {
+        return Err(eval_error(EvalError::Empty {
+            path: sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
+        }));
+    }
+    Ok(Some(dynapix_eval::run::score_written(
+        &gt.pairs(),
+        trajectory,
+        source,
+        Some(&sequence.timestamps()),
+        &EvalParams::default(),
+    )))
+}
+
+/// ATE RMSE and motionless floor (metres) of `trajectory` (taken as it is, all digits)
+/// against the ground truth of `sequence`, with its frame stamps for the tracking rate, as
+/// `dynapix bench` reports them; `None` without ground truth or without a pose.
+pub fn ate_and_floor(sequence: &Sequence, trajectory: &Trajectory) -> Result<Option<(f64, f64)>> {
+    let Some(gt) = &sequence.groundtruth else {
+        return Ok(None);
+    };
+    if trajectory.is_empty() {
+        return Ok(None);
+    }
+    if gt.is_empty() {
+        return Err(eval_error(EvalError::Empty {
+            path: sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
+        }));
+    }
+    let ev = dynapix_eval::evaluate(
+        &gt.pairs(),
+        &trajectory.pairs(),
+        Some(&sequence.timestamps()),
+        &EvalParams::default(),
+    )
+    .map_err(eval_error)?;
+    Ok(Some((ev.ate.stats.rmse, ev.motionless_floor())))
 }
 
 #[cfg(test)]

@@ -37,7 +37,7 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
 use crate::method::{Method, Terms};
-use crate::poses::{FramePoses, PoseOrigin, as_written};
+use crate::poses::{FramePoses, as_written};
 use crate::progress::Progress;
 use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
 use crate::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
@@ -487,33 +487,19 @@ impl<'a> OfflineRunner<'a> {
         if !MapJob::needs_poses(&self.input, self.config) {
             return Ok(FramePoses::unused(stamps.len()));
         }
-        match &self.config.motion.poses {
-            PoseSource::GroundTruth => {
-                let path = self.input.sequence.dir.join("groundtruth.txt");
-                let gt = self.input.sequence.groundtruth.as_ref().ok_or_else(|| {
-                    Error::Input(format!(
-                        "ground-truth poses asked for, but {} does not exist",
-                        path.display()
-                    ))
-                })?;
-                FramePoses::from_trajectory(gt, &stamps, gap, PoseOrigin::GroundTruth { path })
-            }
-            PoseSource::File(path) => {
-                let t = Trajectory::read_tum(path)?;
-                FramePoses::from_trajectory(
-                    &t,
-                    &stamps,
-                    gap,
-                    PoseOrigin::File { path: path.clone() },
-                )
-            }
-            PoseSource::Own => {
+        let (poses, missing) = crate::poses::from_source(
+            &self.config.motion.poses,
+            &self.input.sequence,
+            &stamps,
+            gap,
+            || {
                 let prev = previous.ok_or_else(|| {
                     Error::Input(format!("no trajectory before weighted pass {k}"))
                 })?;
-                FramePoses::from_pass(prev, &stamps, k - 1)
-            }
-        }
+                Ok((k - 1, prev.clone()))
+            },
+        )?;
+        poses.complete(&missing, &stamps, gap)
     }
 
     /// The maps of weighted pass `k` (1-based) with `poses`: the sequence's own `prob/` for

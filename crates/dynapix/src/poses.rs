@@ -7,9 +7,10 @@
 //! the nearest tracked pose.
 
 use dynapix_geometry::Se3;
-use dynapix_io::{StampedPose, Trajectory};
+use dynapix_io::{Sequence, StampedPose, Trajectory};
 use serde::Serialize;
 
+use crate::config::PoseSource;
 use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 
@@ -62,6 +63,53 @@ pub fn fill_untracked(traj: &Trajectory, stamps: &[f64]) -> Result<(Trajectory, 
     Ok((Trajectory::new(poses), filled))
 }
 
+/// The poses of `source` for the frames of `sequence` at `stamps` (each within `max_gap`
+/// seconds of a pose; frames without one get the identity and are listed in the second
+/// value): the sequence's ground truth (camera poses, read once with the sequence), a TUM
+/// trajectory file, or for [`PoseSource::Own`] the trajectory of the system's own pass
+/// `own` returns (the pass's index, its trajectory; untracked frames take the nearest tracked
+/// pose, [`FramePoses::from_pass`]). The one lookup of `dynapix run` and `dynapix motion`.
+pub fn from_source(
+    source: &PoseSource,
+    sequence: &Sequence,
+    stamps: &[f64],
+    max_gap: f64,
+    own: impl FnOnce() -> Result<(usize, Trajectory)>,
+) -> Result<(FramePoses, Vec<usize>)> {
+    match source {
+        PoseSource::GroundTruth => {
+            let path = sequence
+                .dir
+                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE);
+            let gt = sequence.groundtruth.as_ref().ok_or_else(|| {
+                Error::Input(format!(
+                    "ground-truth poses asked for, but {} does not exist",
+                    path.display()
+                ))
+            })?;
+            Ok(FramePoses::lookup(
+                gt,
+                stamps,
+                max_gap,
+                PoseOrigin::GroundTruth { path },
+            ))
+        }
+        PoseSource::File(path) => {
+            let t = Trajectory::read_tum(path)?;
+            Ok(FramePoses::lookup(
+                &t,
+                stamps,
+                max_gap,
+                PoseOrigin::File { path: path.clone() },
+            ))
+        }
+        PoseSource::Own => {
+            let (pass, t) = own()?;
+            Ok((FramePoses::from_pass(&t, stamps, pass)?, Vec::new()))
+        }
+    }
+}
+
 /// Where the poses of a set of motion maps came from.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "source", rename_all = "snake_case")]
@@ -91,6 +139,19 @@ impl PoseOrigin {
     /// True when ground truth was used.
     pub fn is_ground_truth(&self) -> bool {
         matches!(self, PoseOrigin::GroundTruth { .. })
+    }
+
+    /// Where the poses came from, for messages: the file, `the first pass`, `weighted pass
+    /// k`, or nothing for [`PoseOrigin::Unused`].
+    pub fn describe(&self) -> String {
+        match self {
+            PoseOrigin::GroundTruth { path } | PoseOrigin::File { path } => {
+                path.display().to_string()
+            }
+            PoseOrigin::Pass { pass: 0, .. } => "the first pass".into(),
+            PoseOrigin::Pass { pass, .. } => format!("weighted pass {pass}"),
+            PoseOrigin::Unused => String::new(),
+        }
     }
 }
 
@@ -134,6 +195,13 @@ impl FramePoses {
         origin: PoseOrigin,
     ) -> Result<Self> {
         let (poses, missing) = Self::lookup(traj, stamps, max_gap, origin);
+        poses.complete(&missing, stamps, max_gap)
+    }
+
+    /// These poses when `missing` (frames without a pose within `max_gap` of their time in
+    /// `stamps`) is empty; else an error listing the frames.
+    pub fn complete(self, missing: &[usize], stamps: &[f64], max_gap: f64) -> Result<Self> {
+        let poses = self;
         if missing.is_empty() {
             return Ok(poses);
         }

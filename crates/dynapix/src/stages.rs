@@ -6,5 +6,5 @@
 pub use crate::cues::RigidityJob;
 pub use crate::maps::{CacheCheck, MapFolder, MapJob, MapSet, compute_into};
 pub use crate::offline::folder_writable;
-pub use crate::poses::{FramePoses, PoseOrigin};
+pub use crate::poses::{FramePoses, PoseOrigin, from_source as poses_from_source};
 pub use crate::slam::{MapLoad, MapSave, PassWeights, SlamSession, load_vocabulary, run_pass};

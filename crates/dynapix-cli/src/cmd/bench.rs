@@ -80,7 +80,7 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     }
     let walls: Vec<f64> = runs.iter().map(|(r, _)| r.wall_seconds).collect();
     let (report, trajectory) = runs.swap_remove(median_index(&walls));
-    let ate = ate(&args.seq.seq_dir, &trajectory, &input.timestamps())?;
+    let ate = dynapix::evaluate::ate_and_floor(&input.sequence, &trajectory)?;
     let mut text = report.to_markdown();
     if walls.len() > 1 {
         text.push_str(&repeat_lines(&walls, report.frames));
@@ -134,27 +134,6 @@ fn repeat_lines(walls: &[f64], frames: usize) -> String {
         fps(lo),
     ));
     text
-}
-
-/// ATE RMSE and motionless floor of `trajectory` against the sequence's ground truth.
-fn ate(
-    seq_dir: &std::path::Path,
-    trajectory: &dynapix_io::Trajectory,
-    stamps: &[f64],
-) -> anyhow::Result<Option<(f64, f64)>> {
-    let gt_path = seq_dir.join("groundtruth.txt");
-    if !gt_path.exists() || trajectory.poses.is_empty() {
-        return Ok(None);
-    }
-    let gt = dynapix_eval::files::read_camera_ground_truth(&gt_path)?;
-    let est: Vec<_> = trajectory.poses.iter().map(|p| (p.t, p.pose)).collect();
-    let ev = dynapix_eval::evaluate(
-        &gt,
-        &est,
-        Some(stamps),
-        &dynapix_eval::EvalParams::default(),
-    )?;
-    Ok(Some((ev.ate.stats.rmse, ev.motionless_floor())))
 }
 
 #[cfg(test)]

@@ -384,37 +384,6 @@ pub fn write_json(path: &Path, value: &serde_json::Value) -> anyhow::Result<()> 
     Ok(())
 }
 
-/// Evaluates `traj` against `seq_dir/groundtruth.txt` as camera poses (Bonn marker poses
-/// converted, like the sequence reader does; ATE RMSE, tracking rate over the frame times
-/// `stamps`); `None` without ground truth.
-pub fn evaluate(
-    seq_dir: &Path,
-    traj: &Path,
-    stamps: &[f64],
-) -> anyhow::Result<Option<dynapix_eval::files::RunEvaluation>> {
-    let gt_path = seq_dir.join("groundtruth.txt");
-    if !gt_path.exists() {
-        return Ok(None);
-    }
-    let gt = dynapix_eval::files::read_camera_ground_truth(&gt_path)?;
-    let params = dynapix_eval::EvalParams::default();
-    Ok(Some(dynapix_eval::files::evaluate_run(
-        &gt,
-        traj,
-        Some(stamps),
-        &params,
-    )))
-}
-
-/// Writes the trajectory top view and the ATE over time of `traj` into `dir`.
-pub fn plots(seq_dir: &Path, traj: &Path, dir: &Path) -> anyhow::Result<()> {
-    let gt = dynapix_eval::files::read_camera_ground_truth(&seq_dir.join("groundtruth.txt"))?;
-    let est = dynapix_eval::files::read_trajectory(traj)?;
-    let ev = dynapix_eval::evaluate(&gt, &est, None, &dynapix_eval::EvalParams::default())?;
-    dynapix_eval::plot::write_plots(dir, &ev.ate)?;
-    Ok(())
-}
-
 /// "Nothing tracked" is not a success: a warning naming the sequence, then an error unless
 /// the user allowed it (`--allow-untracked`). The outputs are already written.
 pub fn check_tracked(seq: &Path, tracked: usize, allow: bool) -> anyhow::Result<()> {

@@ -14,7 +14,7 @@ use dynapix::{CameraChoice, Config, FlowPreset, Input, Method, PoseSource};
 use dynapix_eval::{SequenceSummary, paper_table};
 use image::{Rgb, RgbImage};
 
-use super::common::{Bars, evaluate};
+use super::common::Bars;
 use super::run::{self, RunSpec};
 
 /// Arguments of `dynapix demo`.
@@ -122,10 +122,12 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         }
         let base = Config::default();
         let input = Input::open(&seq, &base.sequence, &CameraChoice::Sequence)?;
-        let stamps: Vec<f64> = dynapix_eval::files::read_trajectory(&seq.join("groundtruth.txt"))?
-            .iter()
-            .map(|p| p.0)
-            .collect();
+        let gt = input
+            .sequence
+            .groundtruth
+            .as_ref()
+            .with_context(|| format!("{} has no groundtruth.txt", seq.display()))?;
+        let stamps = gt.timestamps();
         let mut methods = Vec::new();
         // The ORB-SLAM2 run is DynaPix's first pass (same system, same seed).
         let mut first_pass = None;
@@ -166,8 +168,18 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             if method == Method::Orbslam2 {
                 first_pass = o.written_trajectory.clone();
             }
-            let r = evaluate(&seq, &o.trajectory, &stamps)?;
-            let rr = r.with_context(|| format!("{preset}: no ground truth"))?;
+            // Scored from memory, as the trajectory file reads back.
+            let est = o
+                .written_trajectory
+                .as_ref()
+                .with_context(|| format!("{preset}: the run left no trajectory"))?;
+            let rr = dynapix_eval::evaluate_run_poses(
+                &gt.pairs(),
+                &est.pairs(),
+                &o.trajectory,
+                Some(&stamps),
+                &dynapix_eval::EvalParams::default(),
+            );
             methods.push(dynapix_eval::aggregate::summarize_with_floors(
                 method.name(),
                 vec![rr.result],

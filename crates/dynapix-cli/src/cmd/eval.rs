@@ -63,16 +63,8 @@ struct LoadedGt {
 
 impl LoadedGt {
     fn read(path: &Path, frame: GtFrame) -> anyhow::Result<Self> {
-        dynapix_eval::files::check_trajectory_file(path)
+        let (poses, info) = dynapix_eval::files::read_ground_truth(path, frame)
             .with_context(|| format!("reading ground truth {}", path.display()))?;
-        let info = dynapix_io::read_ground_truth(path, frame)
-            .with_context(|| format!("reading ground truth {}", path.display()))?;
-        let poses = info
-            .trajectory
-            .poses
-            .iter()
-            .map(|p| (p.t, p.pose))
-            .collect();
         Ok(Self { poses, info })
     }
 

@@ -15,11 +15,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use dynapix::stages::{FramePoses, MapFolder, MapJob, PoseOrigin};
+use dynapix::stages::{FramePoses, MapFolder, MapJob};
 use dynapix::{BackgroundSource, FlowPreset, Mode, PoseSource};
 use dynapix::{OfflineRunner, RunOptions};
 use dynapix_io::{MotionProbability, StampedPose, Trajectory};
-use dynapix_motion::metrics::{RocAccumulator, psnr_masked};
+use dynapix_motion::metrics::MaskEvaluation;
 use dynapix_motion::{FloatImage, Variant};
 use image::{Rgb, RgbImage};
 use serde_json::json;
@@ -219,39 +219,15 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let stamps = input.timestamps();
     let gap = config.motion.max_pose_gap;
     let needs_poses = MapJob::needs_poses(&input, &config);
-    let (mut poses, missing, poses_from) = if !needs_poses {
-        (FramePoses::unused(n), Vec::new(), String::new())
+    let (mut poses, missing) = if !needs_poses {
+        (FramePoses::unused(n), Vec::new())
     } else {
-        match &config.motion.poses {
-            PoseSource::GroundTruth => {
-                let path = seq.dir.join("groundtruth.txt");
-                // Camera poses (a Bonn folder's marker poses converted).
-                let gt = dynapix_io::camera_trajectory(&path)?;
-                let (p, m) = FramePoses::lookup(
-                    &gt,
-                    &stamps,
-                    gap,
-                    PoseOrigin::GroundTruth { path: path.clone() },
-                );
-                (p, m, path.display().to_string())
-            }
-            PoseSource::File(path) => {
-                let t = Trajectory::read_tum(path)?;
-                let (p, m) =
-                    FramePoses::lookup(&t, &stamps, gap, PoseOrigin::File { path: path.clone() });
-                (p, m, path.display().to_string())
-            }
-            PoseSource::Own => {
-                let runner = OfflineRunner::new(&config, &input, motion_cache(&input))?;
-                let first = runner.first_pass(bars)?;
-                (
-                    FramePoses::from_pass(&first.trajectory, &stamps, 0)?,
-                    Vec::new(),
-                    "the first pass".to_string(),
-                )
-            }
-        }
+        dynapix::stages::poses_from_source(&config.motion.poses, seq, &stamps, gap, || {
+            let runner = OfflineRunner::new(&config, &input, motion_cache(&input))?;
+            Ok((0, runner.first_pass(bars)?.trajectory))
+        })?
     };
+    let poses_from = poses.origin.describe();
 
     // Validate every frame before writing anything.
     let mut problems =
@@ -333,11 +309,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         tracing::info!("{} frame(s) already done, skipping", skipped.len());
     }
 
-    let mut roc = RocAccumulator::new(0.5);
-    // Squared error sums and pixel counts of the reconstructed background and of the frame
-    // itself against the true background: inside all movers (mask > 0), then inside the
-    // moving ones (mask 255).
-    let mut psnr_acc = [0.0f64; 6];
+    let mut scores = MaskEvaluation::new();
     let task = dynapix::ProgressEvent::Begin {
         task: "motion maps",
         total: todo.len() as u64,
@@ -346,7 +318,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     bars.event(task);
     let stats = job.run(
         &todo,
-        |m| -> Result<(RocAccumulator, [f64; 6]), dynapix_motion::BoxError> {
+        |m| -> Result<MaskEvaluation, dynapix_motion::BoxError> {
             let i = m.index;
             let name = input.map_name(i).ok_or("no file name")?;
             let p = MotionProbability::new(m.p);
@@ -370,42 +342,29 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             {
                 dynapix_io::images::write_rgb(bgrec_dir.join(&name), &paper.background.rgb)?;
             }
-            let mut acc = RocAccumulator::new(0.5);
-            let mut ps = [0.0f64; 6];
+            let mut frame_scores = MaskEvaluation::new();
             if args.eval_masks {
                 let f = &seq.frames[i];
                 let mask_path = f.mask.as_ref().ok_or("no mask")?;
                 let mask = dynapix_io::images::read_mask(mask_path)?;
-                let pos: Vec<bool> = mask.iter().map(|&v| v == 255).collect();
-                acc.add(p.as_image().as_raw(), &pos);
+                frame_scores.add_map(p.as_image().as_raw(), mask.as_raw());
                 if reconstructs
                     && let Some(bg) = &f.background
                     && let Some(paper) = &m.paper
                 {
                     let truth = dynapix_io::images::read_rgb(bg)?;
-                    for (slot, sel) in [(0usize, 1u8), (3, 255)] {
-                        let movers: Vec<bool> = mask.iter().map(|&v| v >= sel).collect();
-                        let k = movers.iter().filter(|&&v| v).count() as f64;
-                        let mse = |a: &RgbImage| {
-                            psnr_masked(a, &truth, &movers)
-                                .map(|p| 255.0f64.powi(2) / 10f64.powf(p / 10.0))
-                                .unwrap_or(0.0)
-                        };
-                        if k > 0.0 {
-                            ps[slot] = mse(&paper.background.rgb) * k;
-                            ps[slot + 1] = mse(&paper.images.rgb) * k;
-                            ps[slot + 2] = k;
-                        }
-                    }
+                    frame_scores.add_background(
+                        mask.as_raw(),
+                        &paper.background.rgb,
+                        &paper.images.rgb,
+                        &truth,
+                    );
                 }
             }
-            Ok((acc, ps))
+            Ok(frame_scores)
         },
-        |_, (acc, ps)| {
-            roc.merge(&acc);
-            for (a, p) in psnr_acc.iter_mut().zip(ps) {
-                *a += p;
-            }
+        |_, frame_scores| {
+            scores.merge(&frame_scores);
             bars.event(dynapix::ProgressEvent::Step {
                 task: "motion maps",
                 message: "",
@@ -422,8 +381,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             let p = dynapix_io::weights::read_prob_png(p)?;
             let mask_path = seq.frames[i].mask.as_ref().context("no mask")?;
             let mask = dynapix_io::images::read_mask(mask_path)?;
-            let pos: Vec<bool> = mask.iter().map(|&m| m == 255).collect();
-            roc.add(p.as_raw(), &pos);
+            scores.add_map(p.as_raw(), mask.as_raw());
         }
     }
     let wall = started.elapsed().as_secs_f64();
@@ -450,41 +408,30 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         folder.dir.display()
     );
     if args.eval_masks {
-        let auc = roc.auc();
-        let iou = roc.iou();
-        let psnr =
-            |se: f64, n: f64| (n > 0.0).then(|| 10.0 * (255.0f64.powi(2) / (se / n)).log10());
-        let bg_psnr = psnr(psnr_acc[0], psnr_acc[2]);
-        let raw_psnr = psnr(psnr_acc[1], psnr_acc[2]);
-        let bg_psnr_moving = psnr(psnr_acc[3], psnr_acc[5]);
-        let raw_psnr_moving = psnr(psnr_acc[4], psnr_acc[5]);
-        let best = roc.best_iou();
+        let e = scores.scores();
+        let f4 = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.4}"));
         println!(
             "eval: ROC-AUC {} IoU(P>0.5) {} best IoU {} over {} moving / {} other pixels",
-            auc.map_or("n/a".into(), |v| format!("{v:.4}")),
-            iou.map_or("n/a".into(), |v| format!("{v:.4}")),
-            best.map_or("n/a".into(), |(t, v)| format!("{v:.4} (P>{t:.3})")),
-            roc.positives(),
-            roc.negatives()
+            f4(e.roc_auc),
+            f4(e.iou_p_gt_0_5),
+            match (e.best_iou, e.best_iou_threshold) {
+                (Some(v), Some(t)) => format!("{v:.4} (P>{t:.3})"),
+                _ => "n/a".into(),
+            },
+            e.moving_pixels,
+            e.other_pixels
         );
-        if let (Some(b), Some(r)) = (bg_psnr, raw_psnr) {
+        if let (Some(b), Some(r)) = (e.background_psnr_in_movers_db, e.frame_psnr_in_movers_db) {
             println!(
                 "eval: reconstructed background PSNR inside all movers {b:.2} dB (frame itself: {r:.2} dB)"
             );
         }
-        if let (Some(b), Some(r)) = (bg_psnr_moving, raw_psnr_moving) {
+        if let (Some(b), Some(r)) = (e.background_psnr_in_moving_db, e.frame_psnr_in_moving_db) {
             println!(
                 "eval: reconstructed background PSNR inside moving movers {b:.2} dB (frame itself: {r:.2} dB)"
             );
         }
-        results["eval"] = json!({
-            "roc_auc": auc, "iou_p_gt_0_5": iou,
-            "best_iou": best.map(|b| b.1), "best_iou_threshold": best.map(|b| b.0),
-            "moving_pixels": roc.positives(), "other_pixels": roc.negatives(),
-            "background_psnr_in_movers_db": bg_psnr, "frame_psnr_in_movers_db": raw_psnr,
-            "background_psnr_in_moving_db": bg_psnr_moving,
-            "frame_psnr_in_moving_db": raw_psnr_moving,
-        });
+        results["eval"] = serde_json::to_value(e)?;
     }
     folder.write_record(&input, &record, dynapix::MapsStatus::Complete, results)?;
     Ok(())

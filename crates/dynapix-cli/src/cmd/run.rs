@@ -21,6 +21,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use dynapix::evaluate::{RunEvaluation, score_run};
 use dynapix::{
     Config, Cue, Cues, FirstPass, FlowPreset, FrameStatus, Input, Method, Mode, OfflineRunner,
     OnlineRun, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus, Trajectory,
@@ -29,8 +30,8 @@ use dynapix_io::OutputFolder;
 use serde_json::{Value, json};
 
 use super::common::{
-    Bars, RESULT_MARKERS, SequenceArgs, check_out, evaluate, plots, skipped_note, stop_reason,
-    write_json, write_pass,
+    Bars, RESULT_MARKERS, SequenceArgs, check_out, skipped_note, stop_reason, write_json,
+    write_pass,
 };
 
 /// Per-map-point probability update rule.
@@ -229,22 +230,23 @@ pub struct RunSpec<'a> {
     pub first_run: u64,
 }
 
-/// Evaluates a written trajectory into `dir` (eval.json, plots); returns the result.
+/// Evaluates `trajectory`, written to `dir/trajectory.txt`, from memory against the
+/// sequence's ground truth into `dir` (eval.json, plots); returns the result.
 fn evaluate_into(
     input: &Input,
+    trajectory: &Trajectory,
     dir: &Path,
     stats: &mut Value,
     with_plots: bool,
-) -> anyhow::Result<Option<dynapix_eval::files::RunEvaluation>> {
-    let seq_dir = &input.sequence.dir;
-    let traj = dir.join("trajectory.txt");
-    let ev = evaluate(seq_dir, &traj, &input.timestamps())?;
+) -> anyhow::Result<Option<RunEvaluation>> {
+    let score = score_run(&input.sequence, trajectory, &dir.join("trajectory.txt"))?;
     if with_plots
-        && ev.as_ref().is_some_and(|r| r.result.ate_rmse_m.is_some())
-        && let Err(e) = plots(seq_dir, &traj, dir)
+        && let Some(ev) = score.as_ref().and_then(|s| s.evaluation.as_ref())
+        && let Err(e) = dynapix_eval::plot::write_plots(dir, &ev.ate)
     {
-        tracing::warn!("plots of {}: {}", dir.display(), super::common::report(&e));
+        tracing::warn!("plots of {}: {e}", dir.display());
     }
+    let ev = score.map(|s| s.run);
     if let Some(r) = &ev {
         stats["ate_rmse_m"] = json!(r.result.ate_rmse_m);
         stats["tracking_rate"] = json!(r.result.tracking_rate);
@@ -266,24 +268,24 @@ fn write_earlier_passes(
     shown: &Path,
     run: &dynapix::OfflineOutput,
 ) -> anyhow::Result<Vec<Value>> {
-    let mut dirs: Vec<(String, PathBuf)> = Vec::new();
+    let mut dirs: Vec<(String, PathBuf, &Trajectory)> = Vec::new();
     if let Some(f) = &run.first_pass {
         let rel = Path::new("passes").join("first");
         let d = out.join(&rel);
         std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
         f.trajectory.write_tum(d.join("trajectory.txt"))?;
-        dirs.push(("first".into(), rel));
+        dirs.push(("first".into(), rel, &f.trajectory));
     }
     let n = run.passes.len();
     for (j, p) in run.passes.iter().enumerate().take(n.saturating_sub(1)) {
         let rel = Path::new("passes").join(format!("pass_{}", j + 1));
         write_pass(&out.join(&rel), p)?;
-        dirs.push((format!("{}", j + 1), rel));
+        dirs.push((format!("{}", j + 1), rel, &p.trajectory));
     }
     let mut rows = Vec::new();
-    for (name, rel) in dirs {
+    for (name, rel, trajectory) in dirs {
         let mut stats = json!({"pass": name, "dir": shown.join(&rel)});
-        evaluate_into(input, &out.join(&rel), &mut stats, false)?;
+        evaluate_into(input, trajectory, &out.join(&rel), &mut stats, false)?;
         rows.push(stats);
     }
     Ok(rows)
@@ -418,7 +420,7 @@ fn execute_into(
         outcome.tracked.push(pass.stats.tracked);
         outcome.skipped.push(pass.skipped.clone());
         let mut stats = serde_json::to_value(pass.stats)?;
-        let ev = evaluate_into(spec.input, &dir, &mut stats, true)?;
+        let ev = evaluate_into(spec.input, &pass.trajectory, &dir, &mut stats, true)?;
         outcome
             .ate
             .push(ev.as_ref().and_then(|r| r.result.ate_rmse_m));
@@ -435,7 +437,7 @@ fn execute_into(
 
 /// Why a run has no ATE: no ground truth, or the evaluation's error (a sequence of one or two
 /// frames, no overlap in time, …).
-fn no_ate_reason(ev: Option<&dynapix_eval::files::RunEvaluation>) -> String {
+fn no_ate_reason(ev: Option<&RunEvaluation>) -> String {
     match ev {
         None => "no ground truth".into(),
         Some(r) => r
@@ -483,11 +485,16 @@ pub fn execute_online(
 }
 
 /// Writes the poses reported so far and every frame's status (skipped frames lost) into `dir`.
-fn write_online_poses(dir: &Path, run: &OnlineRun) -> anyhow::Result<Vec<StampedStatus>> {
-    run.reported().write_tum(dir.join("trajectory.txt"))?;
+/// Returns the reported poses and the statuses.
+fn write_online_poses(
+    dir: &Path,
+    run: &OnlineRun,
+) -> anyhow::Result<(Trajectory, Vec<StampedStatus>)> {
+    let reported = run.reported();
+    reported.write_tum(dir.join("trajectory.txt"))?;
     let status = run.status();
     dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
-    Ok(status)
+    Ok((reported, status))
 }
 
 /// The online run of [`execute_online`] into the folder `dir`.
@@ -508,7 +515,7 @@ fn online_into(
     }
     let n = input.len();
     let results = &run.results;
-    let status = write_online_poses(dir, &run)?;
+    let (reported, status) = write_online_poses(dir, &run)?;
     run.refined.write_tum(dir.join("trajectory_refined.txt"))?;
     let per = |f: &dyn Fn(&dynapix::FrameResult) -> f64| {
         let mut v: Vec<f64> = results.iter().map(f).collect();
@@ -542,7 +549,7 @@ fn online_into(
         "wall_seconds": run.wall_seconds,
         "masks": masks,
     });
-    let ev = evaluate_into(input, dir, &mut stats, true)?;
+    let ev = evaluate_into(input, &reported, dir, &mut stats, true)?;
     record.skipped_frames = Some(run.skipped.clone());
     record.results = Some(vec![stats]);
     Ok(RunOutcome {
