@@ -67,6 +67,14 @@ pub struct TrackingParams {
     /// (0 = off, as ORB-SLAM2). Among movers the few static matches of the last frame can be
     /// too few for the motion model while the local map still holds enough static points.
     pub predicted_frames: u64,
+    /// Relocalisation against the local map: while lost, when the bag-of-words
+    /// relocalisation (and predicted tracking) fail, the frame is matched by projection
+    /// against the last local map from the last tracked pose, held and extrapolated, within
+    /// `local_reloc_th`; it is then accepted as after any relocalisation (≥
+    /// `local_min_inliers_reloc` local-map inliers). Off in ORB-SLAM2 (false).
+    pub local_relocalisation: bool,
+    /// Search radius factor of the local-map relocalisation (15, the motion model's).
+    pub local_reloc_th: f32,
 }
 
 impl Default for TrackingParams {
@@ -99,6 +107,8 @@ impl Default for TrackingParams {
             matcher: MatcherParams::default(),
             reloc: RelocParams::default(),
             predicted_frames: 0,
+            local_relocalisation: false,
+            local_reloc_th: 15.0,
         }
     }
 }

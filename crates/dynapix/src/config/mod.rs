@@ -571,6 +571,7 @@ impl Config {
         if mode == Mode::Paper {
             p.static_features_min_weight = Some(0.5);
             p.tracking.predicted_frames = 30;
+            p.tracking.local_relocalisation = true;
             p.final_pose_refinement = true;
         }
         p
@@ -762,6 +763,7 @@ impl Config {
             // ORB-SLAM2 mode is ORB-SLAM2: no static-feature mask, no predicted tracking.
             p.static_features_min_weight = None;
             p.tracking.predicted_frames = 0;
+            p.tracking.local_relocalisation = false;
             p.final_global_ba = false;
             p.final_pose_refinement = false;
         }
@@ -791,6 +793,7 @@ mod tests {
         assert_eq!(orb.map.dynapix.weighting, Weighting::Off);
         assert_eq!(p.system_params().static_features_min_weight, Some(0.5));
         assert_eq!(p.system_params().tracking.predicted_frames, 30);
+        assert!(p.system_params().tracking.local_relocalisation);
         // The final refinements are offline DynaPix only.
         assert!(p.system_params().final_pose_refinement);
         assert!(!orb.final_pose_refinement && !orb.final_global_ba);
