@@ -3,6 +3,7 @@
 //! keyframe creation with close map points, and relocalisation. Scratch state (local
 //! keyframes and points, candidate lists) lives here, keyed by id, never in the map entities.
 
+mod consistency;
 mod local_reloc;
 mod localization;
 mod params;
@@ -640,10 +641,19 @@ impl Tracker {
     }
 
     fn track_local_map(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        let prior = frame.pose.filter(|_| self.predicted);
         self.update_local_keyframes(map, frame);
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
+        if self.params.predicted_consistency
+            && let (Some(from), Some(to)) = (prior, frame.pose)
+            && let Some(shift) = consistency::median_shift(self, map, frame, &from, &to)
+            && shift > consistency::search_window(self.params.local_th_reloc)
+        {
+            tracing::debug!(frame = frame.id, shift, "predicted pose refused: map moved");
+            return false;
+        }
         let upd = crate::weighting::update_matched_points(map, frame);
         if upd.deleted > 0 {
             tracing::debug!(
