@@ -32,7 +32,8 @@ pub struct Args {
     /// Scenario.
     #[arg(long, default_value = "walking_xyz", value_parser = preset_names())]
     pub preset: String,
-    /// Number of frames (30 Hz; default 300). With --augment: at most this many frames.
+    /// Number of frames (30 Hz; default 300, placing_box 450). With --augment: at most this
+    /// many frames.
     #[arg(long)]
     pub frames: Option<usize>,
     /// Seed: same preset and seed give identical bytes.
@@ -44,10 +45,10 @@ pub struct Args {
     /// Also write ground-truth flow from frame t to t+K (`flow/<ts>.flo`, Middlebury).
     #[arg(long, value_name = "K")]
     pub flow: Option<usize>,
-    /// Write a contact sheet of all presets to this PNG: a 3×3 grid of blocks in the order
-    /// static, walking_xyz, walking_static / walking_rpy, walking_halfsphere, sitting /
-    /// flying, occlusion, loop; in each block rows are t = 0, 2, 4 s and columns rgb,
-    /// background, mask, depth.
+    /// Write a contact sheet of all presets to this PNG: a 4×4 grid of blocks in the order
+    /// static, walking_xyz, walking_static, walking_rpy / walking_halfsphere, sitting,
+    /// flying, occlusion / loop, person_tracking, crowd, moving_box / placing_box, balloon;
+    /// in each block rows are t = 0, 2, 4 s and columns rgb, background, mask, depth.
     #[arg(long, value_name = "OUT.png")]
     pub preview: Option<PathBuf>,
     /// Sensor realism.
@@ -114,7 +115,7 @@ pub(crate) fn params(args: &Args) -> anyhow::Result<SynthParams> {
     };
     Ok(SynthParams {
         preset,
-        frames: args.frames.unwrap_or(300),
+        frames: args.frames.unwrap_or(preset.default_frames()),
         seed: args.seed,
         scene: dynapix_synth::SceneParams::for_width(cam.width),
         camera: cam,
