@@ -3,10 +3,10 @@
 //! keyframe creation with close map points, and relocalisation. Scratch state (local
 //! keyframes and points, candidate lists) lives here, keyed by id, never in the map entities.
 
-mod consistency;
 mod local_reloc;
 mod localization;
 mod params;
+mod predicted;
 mod relocalization;
 
 use std::collections::{BTreeMap, HashSet};
@@ -24,6 +24,7 @@ use crate::vocab::Vocabulary;
 use crate::weighting::{BirthSource, may_birth_in_frame};
 
 pub use params::TrackingParams;
+pub(crate) use predicted::moves_the_map;
 pub use relocalization::RelocParams;
 
 /// Tracking state (ORB-SLAM2 `eTrackingState`, without the pre-input states).
@@ -260,29 +261,6 @@ impl Tracker {
             }
         }
         ok
-    }
-
-    /// Predicted local-map tracking (see [`TrackingParams::predicted_frames`]): the pose is the
-    /// constant-velocity extrapolation from the last tracked frame, matches are left to the
-    /// local-map search.
-    fn predict(&mut self, frame: &mut Frame) -> bool {
-        let Some((v, last, id)) = self.coast else {
-            return false;
-        };
-        let gap = frame.id.saturating_sub(id);
-        if gap == 0 || gap > self.params.predicted_frames || self.local_kfs.is_empty() {
-            return false;
-        }
-        let mut pose = last;
-        for _ in 0..gap {
-            pose = normalized(&(v * pose));
-        }
-        frame.pose = Some(pose);
-        frame.map_points.iter_mut().for_each(|m| *m = None);
-        frame.outlier.iter_mut().for_each(|o| *o = false);
-        self.predicted = true;
-        tracing::debug!(frame = frame.id, gap, "predicted local-map tracking");
-        true
     }
 
     /// An outcome with the current state and nothing tracked yet.
@@ -646,10 +624,16 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
-        if self.params.predicted_consistency
+        if self.params.pose_consistency
             && let (Some(from), Some(to)) = (prior, frame.pose)
-            && let Some(shift) = consistency::median_shift(self, map, frame, &from, &to)
-            && shift > consistency::search_window(self.params.local_th_reloc)
+            && let Some(shift) = predicted::median_shift(
+                &self.cam,
+                self.local_points.iter().filter_map(|&id| map.point(id)),
+                &frame.grid.bounds,
+                &from,
+                &to,
+            )
+            && shift > predicted::search_window(self.params.local_th_reloc)
         {
             tracing::debug!(frame = frame.id, shift, "predicted pose refused: map moved");
             return false;

@@ -73,11 +73,12 @@ pub struct TrackingParams {
     /// `local_reloc_th`; it is then accepted as after any relocalisation (≥
     /// `local_min_inliers_reloc` local-map inliers). Off in ORB-SLAM2 (false).
     pub local_relocalisation: bool,
-    /// Consistency check of predicted tracking: a predicted frame is refused when its
-    /// optimised pose moves the median projection of the local map by more than the widest
-    /// window of the local-map search that found its matches (4 · `local_th_reloc` px).
-    /// Off in ORB-SLAM2 (false), which has no predicted tracking.
-    pub predicted_consistency: bool,
+    /// Consistency check of a pose found with few matches: a predicted frame is refused, and
+    /// the final pose refinement keeps the tracked pose, when the optimised pose moves the
+    /// median projection of the local map (the reference keyframe's points for the
+    /// refinement) by more than the widest window of the local-map search that found the
+    /// matches (4 · `local_th_reloc` px). Off in ORB-SLAM2 (false).
+    pub pose_consistency: bool,
     /// Search radius factor of the local-map relocalisation (15, the motion model's).
     pub local_reloc_th: f32,
 }
@@ -113,7 +114,7 @@ impl Default for TrackingParams {
             reloc: RelocParams::default(),
             predicted_frames: 0,
             local_relocalisation: false,
-            predicted_consistency: false,
+            pose_consistency: false,
             local_reloc_th: 15.0,
         }
     }
