@@ -537,7 +537,8 @@ mod tests {
         let (w, h) = (k.width, k.height);
         let t0 = first.t;
         // Per frame: (time, [px, moving px, centroid x] per mover, moving share).
-        let stats: Vec<(f64, Vec<(usize, usize, f64)>, f64)> = frames
+        type PerMover = Vec<(usize, usize, f64)>;
+        let stats: Vec<(f64, PerMover, f64)> = frames
             .par_iter()
             .map(|(info, pose)| {
                 let rgb = dynapix_io::images::read_rgb(&info.rgb).expect("rgb");

@@ -6,7 +6,7 @@
 //! the exact motion between them (ground-truth flow and the per-pixel "moving" mask).
 
 use crate::body::{Pose, body_frame, dims, gait, person_parts};
-use crate::movers::PersonLook;
+use crate::body::PersonLook;
 use crate::shape::{Primitive, Shape};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};

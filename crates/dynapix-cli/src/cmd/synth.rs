@@ -82,6 +82,15 @@ pub struct Args {
     /// Number of virtual objects for --augment.
     #[arg(long, default_value_t = 3)]
     pub objects: usize,
+    /// --augment: boxes that rest in view for 3 s, are pushed across it and rest again.
+    #[arg(long, default_value_t = 0)]
+    pub boxes: usize,
+    /// --augment: balls thrown back and forth across the view.
+    #[arg(long, default_value_t = 0)]
+    pub balls: usize,
+    /// --augment: people walking across the view close to the camera (a crowd).
+    #[arg(long, default_value_t = 0)]
+    pub crowd: usize,
 }
 
 /// The generator parameters of the arguments (the demo uses it too).
@@ -138,6 +147,9 @@ pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
         let params = dynapix_synth::augment::AugmentParams {
             seed: args.seed,
             objects: args.objects,
+            boxes: args.boxes,
+            balls: args.balls,
+            crowd: args.crowd,
             ..Default::default()
         };
         let bar = bars.adopt(ProgressBar::new(0));
