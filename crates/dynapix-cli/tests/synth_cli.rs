@@ -257,9 +257,11 @@ fn preview_writes_a_contact_sheet_of_all_presets() {
     let out = tmp.path().join("sheet.png");
     synth(&["--preview", out.to_str().expect("utf8"), "--width", "64"]);
     let sheet = image::open(&out).expect("sheet").to_rgb8();
-    // 3×3 blocks; each 4 thumbnails of 200×150 wide and 3 frames tall, plus a 4 px border.
-    assert_eq!(sheet.dimensions(), (3 * (4 * 200 + 4), 3 * (3 * 150 + 4)));
-    // Masks of the static preset (first block, third column) are black; flying (block 7) is not.
+    // 4×4 blocks (14 presets); each 4 thumbnails of 200×150 wide and 3 frames tall, plus a
+    // 4 px border.
+    assert_eq!(sheet.dimensions(), (4 * (4 * 200 + 4), 4 * (3 * 150 + 4)));
+    // Masks of the static preset (first block, third column) are black; flying (block 7, third
+    // of the second row) is not.
     let mask_px =
         |bx: u32, by: u32, x: u32, y: u32| sheet.get_pixel(bx * 804 + 2 * 200 + x, by * 454 + y)[0];
     assert!(
@@ -267,5 +269,5 @@ fn preview_writes_a_contact_sheet_of_all_presets() {
             .step_by(7)
             .all(|y| (0..200).step_by(7).all(|x| mask_px(0, 0, x, y) == 0))
     );
-    assert!((0..450).any(|y| (0..200).any(|x| mask_px(0, 2, x, y) > 100)));
+    assert!((0..450).any(|y| (0..200).any(|x| mask_px(2, 1, x, y) > 100)));
 }

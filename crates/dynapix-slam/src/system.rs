@@ -694,6 +694,14 @@ impl<E: FeatureExtractor> System<E> {
                 continue;
             }
             let tcw = crate::pose::normalized(&res.pose);
+            if self.tracker.params.pose_consistency
+                && self.map.keyframe(k).is_some_and(|kf| {
+                    let th = self.tracker.params.local_th_reloc;
+                    crate::tracking::moves_the_map(&self.cam, &self.map, kf, &(tcr * kp), &tcw, th)
+                })
+            {
+                continue;
+            }
             r.relative = Some((k, tcw * kp.inverse()));
             n += 1;
         }

@@ -3,8 +3,10 @@
 //! keyframe creation with close map points, and relocalisation. Scratch state (local
 //! keyframes and points, candidate lists) lives here, keyed by id, never in the map entities.
 
+mod local_reloc;
 mod localization;
 mod params;
+mod predicted;
 mod relocalization;
 
 use std::collections::{BTreeMap, HashSet};
@@ -22,6 +24,7 @@ use crate::vocab::Vocabulary;
 use crate::weighting::{BirthSource, may_birth_in_frame};
 
 pub use params::TrackingParams;
+pub(crate) use predicted::moves_the_map;
 pub use relocalization::RelocParams;
 
 /// Tracking state (ORB-SLAM2 `eTrackingState`, without the pre-input states).
@@ -225,6 +228,14 @@ impl Tracker {
         if ok {
             ok = self.track_local_map(map, frame);
         }
+        if !ok && self.state == TrackingState::Lost && self.params.local_relocalisation {
+            ok = self.relocalize_local_map(map, frame);
+            if ok {
+                frame.reference = self.reference_kf;
+                ok = self.track_local_map(map, frame);
+            }
+            out.relocalised = ok;
+        }
         self.state = if ok {
             TrackingState::Ok
         } else {
@@ -250,29 +261,6 @@ impl Tracker {
             }
         }
         ok
-    }
-
-    /// Predicted local-map tracking (see [`TrackingParams::predicted_frames`]): the pose is the
-    /// constant-velocity extrapolation from the last tracked frame, matches are left to the
-    /// local-map search.
-    fn predict(&mut self, frame: &mut Frame) -> bool {
-        let Some((v, last, id)) = self.coast else {
-            return false;
-        };
-        let gap = frame.id.saturating_sub(id);
-        if gap == 0 || gap > self.params.predicted_frames || self.local_kfs.is_empty() {
-            return false;
-        }
-        let mut pose = last;
-        for _ in 0..gap {
-            pose = normalized(&(v * pose));
-        }
-        frame.pose = Some(pose);
-        frame.map_points.iter_mut().for_each(|m| *m = None);
-        frame.outlier.iter_mut().for_each(|o| *o = false);
-        self.predicted = true;
-        tracing::debug!(frame = frame.id, gap, "predicted local-map tracking");
-        true
     }
 
     /// An outcome with the current state and nothing tracked yet.
@@ -631,10 +619,25 @@ impl Tracker {
     }
 
     fn track_local_map(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        let prior = frame.pose.filter(|_| self.predicted);
         self.update_local_keyframes(map, frame);
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
+        if self.params.pose_consistency
+            && let (Some(from), Some(to)) = (prior, frame.pose)
+            && let Some(shift) = predicted::median_shift(
+                &self.cam,
+                self.local_points.iter().filter_map(|&id| map.point(id)),
+                &frame.grid.bounds,
+                &from,
+                &to,
+            )
+            && shift > predicted::search_window(self.params.local_th_reloc)
+        {
+            tracing::debug!(frame = frame.id, shift, "predicted pose refused: map moved");
+            return false;
+        }
         let upd = crate::weighting::update_matched_points(map, frame);
         if upd.deleted > 0 {
             tracing::debug!(
@@ -767,6 +770,18 @@ impl Tracker {
 
     fn relocalize(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
         let ok = relocalization::relocalize(self, map, frame);
+        if ok {
+            self.last_reloc_frame = frame.id;
+        }
+        ok
+    }
+
+    /// Relocalisation against the last local map (see
+    /// [`TrackingParams::local_relocalisation`]); counts as a relocalisation for the stricter
+    /// local-map check of the following frames.
+    fn relocalize_local_map(&mut self, map: &mut Map, frame: &mut Frame) -> bool {
+        self.predicted = false;
+        let ok = local_reloc::relocalize_local_map(self, map, frame);
         if ok {
             self.last_reloc_frame = frame.id;
         }
@@ -907,5 +922,99 @@ mod tests {
         assert_eq!(out.state, TrackingState::Lost);
         // A one-keyframe map is reset by the system.
         assert!(out.reset_requested);
+    }
+
+    /// Tracks frames 0..10 of `world`, then `occluded` frames without a keypoint, then the
+    /// frames after; returns the state and pose error of each returning frame.
+    fn occlusion_run(
+        params: TrackingParams,
+        occluded: u64,
+        returning: impl Fn(u64) -> Frame,
+        world: &World,
+    ) -> Vec<(TrackingState, f64)> {
+        let mut map = Map::new(ScalePyramid::new(8, 1.2), MapParams::default());
+        let mut tracker = Tracker::new(world.cam.clone(), params);
+        for i in 0..10 {
+            tracker.track(&mut map, world.frame(i, &pose_at(i)), None);
+        }
+        let empty = |id: u64| {
+            Frame::new(
+                id,
+                id as f64 / 30.0,
+                vec![],
+                vec![],
+                &DepthImage::new(640, 480),
+                None,
+                &world.cam,
+                world.cam.image_bounds(),
+            )
+        };
+        for i in 10..10 + occluded {
+            let out = tracker.track(&mut map, empty(i), None);
+            assert_eq!(out.state, TrackingState::Lost, "occluded frame {i}");
+        }
+        let t0_inv = pose_at(0).inverse();
+        (10 + occluded..15 + occluded)
+            .map(|i| {
+                let out = tracker.track(&mut map, returning(i), None);
+                let err = out.pose.map_or(f64::INFINITY, |p| {
+                    let truth = pose_at(i) * t0_inv;
+                    (p.translation.vector - truth.translation.vector).norm()
+                });
+                (out.state, err)
+            })
+            .collect()
+    }
+
+    /// Bag-of-words relocalisation made impossible, to see the local-map one alone.
+    fn no_bow_reloc(local: bool) -> TrackingParams {
+        let mut p = TrackingParams::default();
+        p.reloc.min_matches = usize::MAX;
+        p.local_relocalisation = local;
+        p
+    }
+
+    #[test]
+    fn local_map_relocalisation_recovers_when_static_features_return() {
+        let world = World::new(1500, 11);
+        // 40 frames of full occlusion: longer than any predicted tracking (off here).
+        let on = occlusion_run(
+            no_bow_reloc(true),
+            40,
+            |i| world.frame(i, &pose_at(i)),
+            &world,
+        );
+        assert_eq!(on[0].0, TrackingState::Ok, "first returning frame");
+        for (k, (state, err)) in on.iter().enumerate() {
+            assert_eq!(*state, TrackingState::Ok, "returning frame {k}");
+            assert!(*err < 1e-3, "returning frame {k}: {err} m");
+        }
+        let off = occlusion_run(
+            no_bow_reloc(false),
+            40,
+            |i| world.frame(i, &pose_at(i)),
+            &world,
+        );
+        assert!(
+            off.iter().all(|(s, _)| *s == TrackingState::Lost),
+            "{off:?}"
+        );
+    }
+
+    #[test]
+    fn local_map_relocalisation_refuses_another_place() {
+        let world = World::new(1500, 11);
+        // After the occlusion the camera sees another world: no pose may be accepted.
+        let other = World::new(1500, 12);
+        let out = occlusion_run(
+            no_bow_reloc(true),
+            5,
+            |i| other.frame(i, &pose_at(i)),
+            &world,
+        );
+        assert!(
+            out.iter().all(|(s, _)| *s == TrackingState::Lost),
+            "{out:?}"
+        );
     }
 }

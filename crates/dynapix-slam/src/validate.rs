@@ -96,7 +96,8 @@ impl Validate for TrackingParams {
         nested("pose", &self.pose)?;
         nested("matcher", &self.matcher)?;
         nested("reloc", &self.reloc)?;
-        range("predicted_frames", self.predicted_frames, 0, MAX_FRAMES)
+        range("predicted_frames", self.predicted_frames, 0, MAX_FRAMES)?;
+        above("local_reloc_th", self.local_reloc_th, 0.0, MAX_RADIUS)
     }
 }
 

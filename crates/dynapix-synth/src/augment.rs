@@ -11,19 +11,26 @@
 //! shifts mover pixels by at most a few pixels near the image border; static pixels are never
 //! touched, so mask-0 pixels keep the original bytes exactly.
 //!
-//! Placement: the real scene's floor is unknown, so movers are flying textured boxes and
-//! spheres placed relative to the first ground-truth camera, in front of it at a fraction of
-//! the median depth of the first frame, moving within a box a few decimetres wide.
+//! Placement: the real scene's floor is unknown, so movers are placed relative to the first
+//! ground-truth camera, in front of it at a fraction `d` of the median depth of the first
+//! frame: flying textured boxes and spheres moving within a box a few decimetres wide, and
+//! optionally the hard-scene kinds of issue 33 (see [`crate::hard`]): boxes that rest on the
+//! optical axis for `box_rest` s and are then pushed sideways across the view and rest again
+//! (back and forth), balls thrown across the view (3.5 m/s) and a crowd of people walking
+//! across the view at 1–2 `d`. These use a level "stage" frame: up is the world's +z when the
+//! camera's down axis points mostly along −z (TUM's motion-capture frame), else the camera's
+//! −y; people stand on a floor 1.35 m below the first camera.
 
 use crate::SynthError;
-use crate::movers::{Mover, MoverKind, PersonLook};
+use crate::movers::{Mover, MoverKind, Path, PersonLook};
 use crate::render::{self, Intrinsics, Layers, MOVER_BIT, NO_HIT, RenderParams};
 use crate::scene::{Light, Scene};
+use crate::script::{BoxPlace, CarriedBox, Script, Throw};
 use crate::sequence::Gray16Image;
 use crate::shape::{Primitive, Shape};
 use crate::texture::TextureKind;
 use image::{GrayImage, RgbImage};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -39,6 +46,14 @@ pub struct AugmentParams {
     pub depth_fraction: f32,
     /// Size of the objects relative to that distance.
     pub size_fraction: f32,
+    /// Number of boxes that rest and are then pushed across the view (and back).
+    pub boxes: usize,
+    /// Seconds a box rests between pushes.
+    pub box_rest: f32,
+    /// Number of balls thrown back and forth across the view.
+    pub balls: usize,
+    /// Number of people walking across the view (a crowd close to the camera).
+    pub crowd: usize,
     /// Per-frame displacement (m) above which a mover pixel counts as moving.
     pub moving_threshold: f32,
     /// Renderer settings.
@@ -52,6 +67,10 @@ impl Default for AugmentParams {
             objects: 3,
             depth_fraction: 0.6,
             size_fraction: 0.09,
+            boxes: 0,
+            box_rest: 3.0,
+            balls: 0,
+            crowd: 0,
             moving_threshold: 0.0005,
             render: RenderParams::default(),
         }
@@ -65,6 +84,8 @@ pub struct Augmenter {
     pub params: AugmentParams,
     scene: Scene,
     movers: Vec<Mover>,
+    /// Per mover: its frame (stage) to world; the flying objects are posed in the world.
+    stages: Vec<Isometry3<f32>>,
 }
 
 /// One composited frame.
@@ -176,17 +197,37 @@ impl Augmenter {
                 },
             });
         }
+        let mut stages = vec![Isometry3::identity(); movers.len()];
+        let stage_rot = level_frame(&pose);
+        let hard = HardMovers {
+            dist,
+            half_width: dist * 0.5 * k_width_ratio(),
+        };
+        hard.add(
+            &params,
+            &mut rng,
+            &mut scene,
+            &pose,
+            stage_rot,
+            &mut movers,
+            &mut stages,
+        );
         Ok(Self {
             params,
             scene,
             movers,
+            stages,
         })
     }
 
     fn parts_at(&self, t: f64) -> Vec<Primitive> {
         let mut parts = Vec::new();
-        for m in &self.movers {
+        for (m, stage) in self.movers.iter().zip(&self.stages) {
+            let from = parts.len();
             m.parts(t as f32, &mut parts);
+            for p in &mut parts[from..] {
+                p.pose = stage * p.pose;
+            }
         }
         parts
     }
@@ -293,9 +334,271 @@ impl Augmenter {
     }
 }
 
+/// Width of the view at 1 m from the camera, assumed for placing the hard-scene movers (a
+/// 60° field of view, about TUM's 62°; the placement only needs to cross the view).
+fn k_width_ratio() -> f32 {
+    2.0 * (30f32).to_radians().tan()
+}
+
+/// The level stage frame's rotation at camera pose `pose`: columns side, forward, up.
+fn level_frame(pose: &Isometry3<f32>) -> UnitQuaternion<f32> {
+    let cam_y = pose.rotation * Vector3::y();
+    let cam_z = pose.rotation * Vector3::z();
+    let up = if cam_y.z < -0.5 { Vector3::z() } else { -cam_y };
+    let fwd = (cam_z - up * cam_z.dot(&up))
+        .try_normalize(1e-6)
+        .unwrap_or(cam_z);
+    let side = fwd.cross(&up);
+    crate::scene::frame_from_axes(side, fwd, up)
+}
+
+/// Placement of the hard-scene movers at distance `dist` in front of the first camera.
+struct HardMovers {
+    dist: f32,
+    half_width: f32,
+}
+
+impl HardMovers {
+    #[allow(clippy::too_many_arguments)]
+    fn add(
+        &self,
+        p: &AugmentParams,
+        rng: &mut ChaCha8Rng,
+        scene: &mut Scene,
+        cam: &Isometry3<f32>,
+        rot: UnitQuaternion<f32>,
+        movers: &mut Vec<Mover>,
+        stages: &mut Vec<Isometry3<f32>>,
+    ) {
+        let d = self.dist;
+        let on_axis = cam.translation.vector + cam.rotation * Vector3::z() * d;
+        let up = rot * Vector3::z();
+        let object = |scene: &mut Scene, rng: &mut ChaCha8Rng, k: usize| {
+            let kinds = [
+                TextureKind::Checker,
+                TextureKind::Poster,
+                TextureKind::Mosaic,
+            ];
+            let m = scene.add_material(kinds[k % 3], 128, [0.3 * d, 0.3 * d], rng);
+            PersonLook {
+                shirt: m,
+                trousers: m,
+                skin: m,
+                head: m,
+            }
+        };
+        for k in 0..p.boxes {
+            let h = d * rng.random_range(0.12..0.18);
+            let half = Vector3::new(h, h, h);
+            // Rests on the axis (boxes after the first a little aside), pushed across.
+            let x0 = (k as f32) * 2.5 * h * if k % 2 == 0 { 1.0 } else { -1.0 };
+            let x1 = x0 + if k % 2 == 0 { 1.0 } else { -1.0 } * self.half_width * 0.9;
+            let places = [
+                BoxPlace::Floor {
+                    pos: [x0, 0.0],
+                    yaw: 0.0,
+                },
+                BoxPlace::Floor {
+                    pos: [x1, 0.0],
+                    yaw: rng.random_range(-0.5..0.5),
+                },
+            ];
+            let (rest, push) = (p.box_rest.max(0.1), 2.0);
+            let keys = (0..40)
+                .flat_map(|c| {
+                    let t = c as f32 * (rest + push) + rest;
+                    [(t, places[c % 2]), (t + push, places[(c + 1) % 2])]
+                })
+                .collect();
+            let look = object(scene, rng, k);
+            movers.push(Mover {
+                kind: MoverKind::Carried(CarriedBox {
+                    half,
+                    carrier: Script::default(),
+                    keys,
+                }),
+                look,
+            });
+            let origin = on_axis - up * (h + (k as f32) * 0.3 * h);
+            stages.push(Isometry3::from_parts(Translation3::from(origin), rot));
+        }
+        for k in 0..p.balls {
+            let l = 2.4 * self.half_width;
+            let look = object(scene, rng, k + 1);
+            movers.push(Mover {
+                kind: MoverKind::Thrown(Throw {
+                    shape: Shape::Sphere {
+                        r: d * rng.random_range(0.07..0.1),
+                    },
+                    a: Vector3::new(-l / 2.0, 0.0, 0.0),
+                    b: Vector3::new(l / 2.0, 0.0, 0.0),
+                    flight: l / 3.5,
+                    hold: rng.random_range(1.0..2.0),
+                    offset: rng.random_range(0.0..2.0),
+                    spin_axis: Vector3::new(rng.random_range(-1.0..1.0), 0.3, 1.0),
+                    spin: rng.random_range(4.0..8.0),
+                }),
+                look,
+            });
+            let origin = on_axis + up * (k as f32 * 0.2 * d - 0.1 * d);
+            stages.push(Isometry3::from_parts(Translation3::from(origin), rot));
+        }
+        // People walk on a floor 1.35 m below the camera, crossing at 1–2 d, alternately
+        // from the left and from the right.
+        let floor = cam.translation.vector - up * 1.35;
+        for k in 0..p.crowd {
+            let (shirt, trousers, skin, head) = (
+                scene.add_material(TextureKind::Fabric, 128, [0.35, 0.35], rng),
+                scene.add_material(TextureKind::Fabric, 128, [0.3, 0.3], rng),
+                scene.add_material(TextureKind::Skin, 128, [0.3, 0.3], rng),
+                scene.add_material(
+                    TextureKind::Head,
+                    128,
+                    [std::f32::consts::TAU * 0.115, std::f32::consts::PI * 0.115],
+                    rng,
+                ),
+            );
+            let y = d * (1.0 + k as f32 / p.crowd.max(1) as f32);
+            let x = y * 0.5 * k_width_ratio() + 0.5;
+            let (a, b) = if k % 2 == 0 {
+                ([-x, y], [x, y])
+            } else {
+                ([x, y], [-x, y])
+            };
+            movers.push(Mover {
+                kind: MoverKind::Walker {
+                    path: Path::PingPong { a, b },
+                    speed: rng.random_range(0.8..1.0),
+                    start_delay: 0.0,
+                    offset: rng.random_range(0.0..3.0),
+                },
+                look: PersonLook {
+                    shirt,
+                    trousers,
+                    skin,
+                    head,
+                },
+            });
+            stages.push(Isometry3::from_parts(Translation3::from(floor), rot));
+        }
+    }
+}
+
 /// Median of the valid (non-zero) raw depths, in metres.
 pub fn median_depth(depth: &Gray16Image, depth_factor: f32) -> Option<f32> {
     let mut v: Vec<u16> = depth.as_raw().iter().copied().filter(|&d| d > 0).collect();
     let m = dynapix_geometry::stats::upper_median_by(&mut v, u16::cmp)?;
     Some(m as f32 / depth_factor)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rayon::prelude::*;
+
+    /// fr1_xyz (real, static) with a resting-then-pushed box, a thrown ball and three people:
+    /// per-frame statistics from the composited masks and instance ids.
+    #[test]
+    fn fr1_xyz_gets_a_resting_box_a_thrown_ball_and_a_crowd() {
+        let dir = std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../shared/data/tum/rgbd_dataset_freiburg1_xyz"
+        ));
+        if !dir.is_dir() {
+            eprintln!("skipping: {} not found", dir.display());
+            return;
+        }
+        let opts = dynapix_io::SequenceOptions {
+            pairing: dynapix_io::Pairing::OneToOne,
+            ..Default::default()
+        };
+        let seq = dynapix_io::Sequence::open_with(dir, &opts).expect("fr1_xyz");
+        let cam = seq.settings().expect("settings").camera();
+        let k = Intrinsics::from(&cam);
+        let factor = seq.depth_factor as f32;
+        let frames: Vec<_> = seq
+            .frames
+            .iter()
+            .filter_map(|f| seq.gt_pose_at(f.t).map(|p| (f, p)))
+            .take(240)
+            .collect();
+        let (first, first_pose) = &frames[0];
+        let d0 = dynapix_io::images::read_depth_raw(&first.depth).expect("depth");
+        let med = median_depth(&d0, factor).expect("median");
+        let params = AugmentParams {
+            seed: 1,
+            objects: 0,
+            boxes: 1,
+            balls: 1,
+            crowd: 3,
+            ..Default::default()
+        };
+        let aug = Augmenter::new(params, first_pose, med).expect("augmenter");
+        let (w, h) = (k.width, k.height);
+        let t0 = first.t;
+        // Per frame: (time, [px, moving px, centroid x] per mover, moving share).
+        type PerMover = Vec<(usize, usize, f64)>;
+        let stats: Vec<(f64, PerMover, f64)> = frames
+            .par_iter()
+            .map(|(info, pose)| {
+                let rgb = dynapix_io::images::read_rgb(&info.rgb).expect("rgb");
+                let depth = dynapix_io::images::read_depth_raw(&info.depth).expect("depth");
+                let c = aug.composite(&k, info.t - t0, 1.0 / 30.0, pose, &rgb, &depth, factor);
+                let mut per = vec![(0usize, 0usize, 0.0f64); 5];
+                let mut moving = 0usize;
+                for (j, (&m, &id)) in c.mask.as_raw().iter().zip(c.instance.as_raw()).enumerate() {
+                    if m == 0 {
+                        assert_eq!(
+                            c.rgb.as_raw()[3 * j..3 * j + 3],
+                            rgb.as_raw()[3 * j..3 * j + 3]
+                        );
+                        continue;
+                    }
+                    moving += (m == 255) as usize;
+                    let o = &mut per[id as usize - 1];
+                    o.0 += 1;
+                    o.1 += (m == 255) as usize;
+                    o.2 += (j % w) as f64;
+                }
+                for o in &mut per {
+                    o.2 /= o.0.max(1) as f64;
+                }
+                (info.t - t0, per, moving as f64 / (w * h) as f64)
+            })
+            .collect();
+        // Box (mover 0): visible and still for the first seconds, then pushed (moving).
+        let still_until = stats
+            .iter()
+            .take_while(|s| s.1[0].0 > 100 && s.1[0].1 == 0)
+            .last()
+            .map_or(0.0, |s| s.0);
+        let pushed = stats.iter().filter(|s| s.1[0].1 > 100).count();
+        // Ball (mover 1): crosses the view in flight.
+        let xs: Vec<f64> = stats
+            .iter()
+            .filter(|s| s.1[1].1 > 10)
+            .map(|s| s.1[1].2)
+            .collect();
+        let (x0, x1) = xs
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+        // Crowd (movers 2..5): moving share of the image.
+        let people: Vec<usize> = (2..5)
+            .map(|m| stats.iter().filter(|s| s.1[m].1 > 500).count())
+            .collect();
+        let big = stats.iter().filter(|s| s.2 > 0.3).count();
+        eprintln!(
+            "fr1_xyz augmented, {} frames: box still until {still_until:.1} s then moving in \
+             {pushed} frames; ball in flight in view in {} frames, x {x0:.0}..{x1:.0} px; \
+             people moving in view in {people:?} frames; moving share > 30 % in {big} frames",
+            stats.len(),
+            xs.len(),
+        );
+        assert!(still_until >= 2.5, "box still until {still_until}");
+        assert!(pushed >= 20, "box pushed in {pushed} frames");
+        assert!(x0 < w as f64 * 0.25 && x1 > w as f64 * 0.75, "{x0}..{x1}");
+        assert!(people.iter().all(|&n| n >= 10), "{people:?}");
+        assert!(big >= 10, "{big}");
+        let _ = h;
+    }
 }

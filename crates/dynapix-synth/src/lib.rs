@@ -21,11 +21,14 @@
 #![forbid(unsafe_code)]
 
 pub mod augment;
+pub mod body;
+pub mod hard;
 pub mod movers;
 pub mod output;
 pub mod preview;
 pub mod render;
 pub mod scene;
+pub mod script;
 pub mod sensor;
 pub mod sequence;
 pub mod shape;

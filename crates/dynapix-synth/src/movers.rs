@@ -7,22 +7,12 @@
 //! surface point between two frames is `pose₂ · pose₁⁻¹` — used for exact ground-truth flow
 //! and for the per-pixel "is moving" mask.
 
+pub use crate::body::PersonLook;
+use crate::body::{Pose, body_frame, dims as body, gait, iso, person_parts};
+use crate::script::{CarriedBox, Script, Throw};
 use crate::shape::{Primitive, Shape};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{UnitQuaternion, Vector3};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
-
-/// Materials of a person: shirt, trousers, skin/head.
-#[derive(Clone, Copy, Debug)]
-pub struct PersonLook {
-    /// Material of torso and upper arms.
-    pub shirt: usize,
-    /// Material of the legs.
-    pub trousers: usize,
-    /// Material of forearms.
-    pub skin: usize,
-    /// Material of the head (hair and face; one texture tile around the head).
-    pub head: usize,
-}
 
 /// A walking path on the floor.
 #[derive(Clone, Debug)]
@@ -119,6 +109,12 @@ pub enum MoverKind {
         /// Phase offset (s).
         offset: f32,
     },
+    /// A person following a timed script (walking, standing, turning, carrying).
+    Scripted(Script),
+    /// A box resting on the floor or carried by a scripted person (`look.shirt` material).
+    Carried(CarriedBox),
+    /// An object thrown back and forth on a ballistic arc (`look.shirt` material).
+    Thrown(Throw),
 }
 
 /// A mover: motion kind plus materials.
@@ -130,175 +126,9 @@ pub struct Mover {
     pub look: PersonLook,
 }
 
-/// Body dimensions (metres) shared by all people.
-mod body {
-    pub const HIP_Z: f32 = 0.9;
-    pub const HIP_X: f32 = 0.1;
-    pub const THIGH: f32 = 0.44;
-    pub const SHIN: f32 = 0.42;
-    pub const THIGH_R: f32 = 0.075;
-    pub const SHIN_R: f32 = 0.06;
-    pub const TORSO_HALF: [f32; 3] = [0.17, 0.1, 0.29];
-    pub const TORSO_Z: f32 = 0.29; // torso centre above the hips
-    pub const SHOULDER_X: f32 = 0.23;
-    pub const SHOULDER_Z: f32 = 0.5; // above the hips
-    pub const UPPER_ARM: f32 = 0.28;
-    pub const FOREARM: f32 = 0.27;
-    pub const ARM_R: f32 = 0.05;
-    pub const FOREARM_R: f32 = 0.043;
-    pub const HEAD_R: f32 = 0.115;
-    pub const HEAD_Z: f32 = 0.71; // above the hips
-    pub const STRIDE: f32 = 1.3; // metres per gait cycle
-    pub const SEAT_Z: f32 = 0.47;
-}
-
-/// Joint angles of a person (radians). Positive hip/shoulder angles swing the limb forward;
-/// positive knee angles bend the shin backwards, positive elbow angles bend the forearm forward.
-#[derive(Clone, Copy, Debug, Default)]
-struct Pose {
-    hip: [f32; 2],
-    knee: [f32; 2],
-    shoulder: [f32; 2],
-    shoulder_out: [f32; 2],
-    elbow: [f32; 2],
-}
-
-fn rot_x(a: f32) -> UnitQuaternion<f32> {
-    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), a)
-}
-
-fn rot_y(a: f32) -> UnitQuaternion<f32> {
-    UnitQuaternion::from_axis_angle(&Vector3::y_axis(), a)
-}
-
-fn iso(t: Vector3<f32>, r: UnitQuaternion<f32>) -> Isometry3<f32> {
-    Isometry3::from_parts(Translation3::from(t), r)
-}
-
-/// Two-segment limb hanging from `pivot` (body frame): returns the two capsule poses.
-fn limb(
-    pivot: Vector3<f32>,
-    r1: UnitQuaternion<f32>,
-    bend: UnitQuaternion<f32>,
-    l1: f32,
-    l2: f32,
-) -> (Isometry3<f32>, Isometry3<f32>) {
-    let down = Vector3::new(0.0, 0.0, -1.0);
-    let c1 = pivot + r1 * (down * (l1 * 0.5));
-    let joint = pivot + r1 * (down * l1);
-    let r2 = r1 * bend;
-    let c2 = joint + r2 * (down * (l2 * 0.5));
-    (iso(c1, r1), iso(c2, r2))
-}
-
-/// The ten parts of a person with body frame `body` (origin on the floor below the hips,
-/// +y forward, +z up) and hip height `hip_z`, legs either standing or seated.
-fn person_parts(
-    body_to_world: &Isometry3<f32>,
-    hip_z: f32,
-    p: &Pose,
-    look: &PersonLook,
-    out: &mut Vec<Primitive>,
-) {
-    use body::*;
-    let mut push = |shape: Shape, local: Isometry3<f32>, m: usize| {
-        out.push(Primitive::new(shape, body_to_world * local, m));
-    };
-    let hips = Vector3::new(0.0, 0.0, hip_z);
-    push(
-        Shape::Box {
-            half: Vector3::from(TORSO_HALF),
-        },
-        iso(
-            hips + Vector3::new(0.0, 0.0, TORSO_Z),
-            UnitQuaternion::identity(),
-        ),
-        look.shirt,
-    );
-    push(
-        Shape::Sphere { r: HEAD_R },
-        // Texture u = 0.5 (φ = ±π, local -x) must face forward (+y in the body frame).
-        iso(
-            hips + Vector3::new(0.0, 0.0, HEAD_Z),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -FRAC_PI_2),
-        ),
-        look.head,
-    );
-    for side in 0..2 {
-        let sx = if side == 0 { -1.0 } else { 1.0 };
-        let (a, b) = limb(
-            hips + Vector3::new(sx * HIP_X, 0.0, 0.0),
-            rot_x(p.hip[side]),
-            rot_x(-p.knee[side]),
-            THIGH,
-            SHIN,
-        );
-        push(
-            Shape::Capsule {
-                r: THIGH_R,
-                half_h: THIGH * 0.5,
-            },
-            a,
-            look.trousers,
-        );
-        push(
-            Shape::Capsule {
-                r: SHIN_R,
-                half_h: SHIN * 0.5,
-            },
-            b,
-            look.trousers,
-        );
-        let (a, b) = limb(
-            hips + Vector3::new(sx * SHOULDER_X, 0.0, SHOULDER_Z),
-            rot_y(-sx * p.shoulder_out[side]) * rot_x(p.shoulder[side]),
-            rot_x(p.elbow[side]),
-            UPPER_ARM,
-            FOREARM,
-        );
-        push(
-            Shape::Capsule {
-                r: ARM_R,
-                half_h: UPPER_ARM * 0.5,
-            },
-            a,
-            look.shirt,
-        );
-        push(
-            Shape::Capsule {
-                r: FOREARM_R,
-                half_h: FOREARM * 0.5,
-            },
-            b,
-            look.skin,
-        );
-    }
-}
-
-/// Walking gait at phase `phi` (radians; one cycle per stride), amplitude scaled by `amp`.
-fn gait(phi: f32, amp: f32) -> Pose {
-    let hip_a = 0.42 * amp;
-    let s = phi.sin();
-    let c = phi.cos();
-    Pose {
-        hip: [hip_a * s, -hip_a * s],
-        // The knee bends while the leg swings forward.
-        knee: [
-            0.08 + 0.6 * amp * c.max(0.0),
-            0.08 + 0.6 * amp * (-c).max(0.0),
-        ],
-        shoulder: [-0.35 * amp * s, 0.35 * amp * s],
-        shoulder_out: [0.06, 0.06],
-        elbow: [
-            0.2 + 0.15 * amp * (-s).max(0.0),
-            0.2 + 0.15 * amp * s.max(0.0),
-        ],
-    }
-}
-
 /// Body pose on a path: floor position, heading (radians, direction of +y body axis) and
 /// distance walked so far (for the gait phase). `tw` is the walking time.
-fn on_path(path: &Path, speed: f32, tw: f32) -> ([f32; 2], f32, f32, f32) {
+pub(crate) fn on_path(path: &Path, speed: f32, tw: f32) -> ([f32; 2], f32, f32, f32) {
     match *path {
         Path::PingPong { a, b } => {
             let dx = b[0] - a[0];
@@ -413,21 +243,16 @@ fn sit_stand(
     }
 }
 
-fn body_frame(pos: [f32; 2], heading: f32) -> Isometry3<f32> {
-    // Body +y must point along `heading`, so rotate by heading - 90°.
-    iso(
-        Vector3::new(pos[0], pos[1], 0.0),
-        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading - FRAC_PI_2),
-    )
-}
-
 impl Mover {
     /// Number of parts this mover has at any time.
     pub fn part_count(&self) -> usize {
         match self.kind {
-            MoverKind::Walker { .. } | MoverKind::Sitter { .. } => 10,
+            MoverKind::Walker { .. } | MoverKind::Sitter { .. } | MoverKind::Scripted(_) => 10,
             MoverKind::SitStand { .. } => 11,
-            MoverKind::Flyer { .. } | MoverKind::Passer { .. } => 1,
+            MoverKind::Flyer { .. }
+            | MoverKind::Passer { .. }
+            | MoverKind::Carried(_)
+            | MoverKind::Thrown(_) => 1,
         }
     }
 
@@ -541,6 +366,9 @@ impl Mover {
                 let r = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.6 * f);
                 out.push(Primitive::new(*shape, iso(p, r), self.look.shirt));
             }
+            MoverKind::Scripted(s) => s.person_parts(t, &self.look, out),
+            MoverKind::Carried(b) => b.parts(t, self.look.shirt, out),
+            MoverKind::Thrown(th) => th.parts(t, self.look.shirt, out),
         }
     }
 }

@@ -7,6 +7,7 @@
 //! (so a seated person lifting an arm is 255 on the arm and 128 elsewhere).
 
 use crate::SynthError;
+use crate::hard;
 use crate::movers::{Mover, MoverKind, Path, PersonLook};
 use crate::render::{self, Intrinsics, Layers, MOVER_BIT, NO_HIT, RenderParams};
 use crate::scene::{Scene, SceneParams};
@@ -55,11 +56,25 @@ pub enum Preset {
     /// first seconds, which a loop closure needs, and then keeps re-observing the mapped room),
     /// a walker and a seated person.
     Loop,
+    /// The camera follows one walker around the room from behind, 1–2 m away: the person
+    /// stays near the image centre while the room moves.
+    PersonTracking,
+    /// Six people walking 1–3 m in front of the camera, covering over half of the image at
+    /// times; camera `xyz`.
+    Crowd,
+    /// A box rests in view, is picked up, carried 1.7 m and set down again; camera `xyz`.
+    MovingBox,
+    /// A person carries a box in, sets it down, walks away, later comes back and carries it
+    /// off (450 frames by default); camera `xyz`.
+    PlacingBox,
+    /// A ball thrown back and forth across the view 1.5 m away at 3.5–4.9 m/s, and a walker;
+    /// camera `xyz`.
+    Balloon,
 }
 
 impl Preset {
     /// All presets in a fixed order.
-    pub const ALL: [Preset; 9] = [
+    pub const ALL: [Preset; 14] = [
         Preset::Static,
         Preset::WalkingXyz,
         Preset::WalkingStatic,
@@ -69,7 +84,30 @@ impl Preset {
         Preset::Flying,
         Preset::Occlusion,
         Preset::Loop,
+        Preset::PersonTracking,
+        Preset::Crowd,
+        Preset::MovingBox,
+        Preset::PlacingBox,
+        Preset::Balloon,
     ];
+
+    /// The hard-scene presets of issue 33 (each cue of the motion method has a blind spot).
+    pub const HARD: [Preset; 5] = [
+        Preset::PersonTracking,
+        Preset::Crowd,
+        Preset::MovingBox,
+        Preset::PlacingBox,
+        Preset::Balloon,
+    ];
+
+    /// Default number of frames (30 Hz): 300, except `placing_box` (450, so that the box
+    /// rests 8 s between being set down and picked up).
+    pub fn default_frames(self) -> usize {
+        match self {
+            Preset::PlacingBox => crate::hard::PLACING_BOX_FRAMES,
+            _ => 300,
+        }
+    }
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
@@ -83,6 +121,11 @@ impl Preset {
             Preset::Flying => "flying",
             Preset::Occlusion => "occlusion",
             Preset::Loop => "loop",
+            Preset::PersonTracking => "person_tracking",
+            Preset::Crowd => "crowd",
+            Preset::MovingBox => "moving_box",
+            Preset::PlacingBox => "placing_box",
+            Preset::Balloon => "balloon",
         }
     }
 
@@ -95,7 +138,12 @@ impl Preset {
     pub fn motion(self) -> MotionKind {
         match self {
             Preset::Static | Preset::Flying | Preset::Sitting => MotionKind::Handheld,
-            Preset::WalkingXyz => MotionKind::Xyz,
+            Preset::WalkingXyz
+            | Preset::Crowd
+            | Preset::MovingBox
+            | Preset::PlacingBox
+            | Preset::Balloon => MotionKind::Xyz,
+            Preset::PersonTracking => MotionKind::Follow,
             Preset::WalkingStatic | Preset::Occlusion => MotionKind::Static,
             Preset::WalkingRpy => MotionKind::Rpy,
             Preset::WalkingHalfsphere => MotionKind::Halfsphere,
@@ -389,6 +437,11 @@ pub fn preset_movers(preset: Preset, scene: &Scene, seed: u64) -> Vec<Mover> {
             walker1(&mut rng, [-0.4, 1.75], [1.4, 1.75]),
             sitter(&mut rng, -1.8, looks[2]),
         ],
+        Preset::PersonTracking => hard::person_tracking(&mut rng, looks[0]).0,
+        Preset::Crowd => hard::crowd(&mut rng, &[looks[0], looks[1], looks[2], looks[3]]),
+        Preset::MovingBox => hard::moving_box(&mut rng, looks[1], obj(2)),
+        Preset::PlacingBox => hard::placing_box(&mut rng, looks[2], obj(4)),
+        Preset::Balloon => hard::balloon(&mut rng, looks[0], obj(1)),
     }
 }
 
@@ -427,6 +480,10 @@ impl Sequence {
         let movers = preset_movers(params.preset, &scene, params.seed);
         let mut motion =
             CameraMotion::new(params.preset.motion(), params.preset.rig(), params.seed);
+        if params.preset == Preset::PersonTracking {
+            let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ 0x30BE_0000_0000_0003);
+            motion.follow = Some(hard::person_tracking(&mut rng, PersonLook::default()).1);
+        }
         // The loop closes before the end of the sequence (which overlaps the start by
         // LOOP_LAPS − 1 of a lap) when it is long enough for a walking pace.
         motion.loop_period = motion

@@ -62,6 +62,63 @@ pub enum MotionKind {
     Handheld,
     /// A closed loop through the room that returns to the start after `period` seconds.
     Loop,
+    /// Following a person around the room from behind ([`CameraMotion::follow`]).
+    Follow,
+}
+
+/// A camera following a person who walks counter-clockwise around an ellipse (the
+/// [`crate::movers::Path::Ellipse`] walker with the same centre, radii, speed and offset): it
+/// trails the person by `lag` radians of the ellipse, on an ellipse `widen` metres larger, at
+/// height `eye_z`, and looks at the person's body at height `aim_z`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Follow {
+    /// Centre of the walker's ellipse (x, y).
+    pub centre: [f64; 2],
+    /// Radii of the walker's ellipse along x and y.
+    pub radii: [f64; 2],
+    /// Walking speed (m/s).
+    pub speed: f64,
+    /// The walker's time offset into the path (s).
+    pub offset: f64,
+    /// Angle (radians of the ellipse parameter) by which the camera trails the walker.
+    pub lag: f64,
+    /// Metres added to both radii for the camera's ellipse.
+    pub widen: f64,
+    /// Camera height (m).
+    pub eye_z: f64,
+    /// Height of the point looked at on the walker (m).
+    pub aim_z: f64,
+}
+
+impl Follow {
+    /// Ellipse parameter of the walker at time `t`, as [`crate::movers::Path::Ellipse`]
+    /// computes it (Ramanujan's perimeter, uniform in the parameter).
+    pub fn walker_angle(&self, t: f64) -> f64 {
+        let [a, b] = self.radii;
+        let circ = PI * (3.0 * (a + b) - ((3.0 * a + b) * (a + 3.0 * b)).sqrt());
+        TAU * ((t + self.offset) * self.speed / circ)
+    }
+
+    /// The walker's floor position at time `t`.
+    pub fn walker(&self, t: f64) -> [f64; 2] {
+        let th = self.walker_angle(t);
+        [
+            self.centre[0] + self.radii[0] * th.cos(),
+            self.centre[1] + self.radii[1] * th.sin(),
+        ]
+    }
+
+    /// Camera centre and the point it looks at, at time `t`.
+    pub fn eye_target(&self, t: f64) -> (Point3<f64>, Point3<f64>) {
+        let th = self.walker_angle(t) - self.lag;
+        let eye = Point3::new(
+            self.centre[0] + (self.radii[0] + self.widen) * th.cos(),
+            self.centre[1] + (self.radii[1] + self.widen) * th.sin(),
+            self.eye_z,
+        );
+        let w = self.walker(t);
+        (eye, Point3::new(w[0], w[1], self.aim_z))
+    }
 }
 
 /// A camera motion: kind, base rig, random phases (from the seed) and loop period.
@@ -73,6 +130,8 @@ pub struct CameraMotion {
     pub rig: Rig,
     /// Loop period in seconds (only [`MotionKind::Loop`]).
     pub loop_period: f64,
+    /// The person followed ([`MotionKind::Follow`]; without it that kind stands at the rig).
+    pub follow: Option<Follow>,
     /// Random sinusoid components: per channel (x, y, z, target x/y/z, roll) lists of
     /// (amplitude, angular frequency, phase).
     waves: Vec<Vec<(f64, f64, f64)>>,
@@ -140,6 +199,7 @@ impl CameraMotion {
             kind,
             rig,
             loop_period: MIN_LOOP_PERIOD,
+            follow: None,
             waves,
         }
     }
@@ -152,6 +212,14 @@ impl CameraMotion {
         let roll_w = w(6);
         let rig = self.rig;
         let (eye, rot) = match self.kind {
+            MotionKind::Follow => {
+                let (eye, target) = match self.follow {
+                    Some(f) => f.eye_target(t),
+                    None => (rig.eye, rig.target),
+                };
+                let eye = eye + wobble_eye;
+                (eye, look_at(&eye, &(target + wobble_tgt)))
+            }
             MotionKind::Static | MotionKind::Handheld => {
                 let eye = rig.eye + wobble_eye;
                 let r = look_at(&eye, &(rig.target + wobble_tgt));

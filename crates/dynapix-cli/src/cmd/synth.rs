@@ -32,7 +32,8 @@ pub struct Args {
     /// Scenario.
     #[arg(long, default_value = "walking_xyz", value_parser = preset_names())]
     pub preset: String,
-    /// Number of frames (30 Hz; default 300). With --augment: at most this many frames.
+    /// Number of frames (30 Hz; default 300, placing_box 450). With --augment: at most this
+    /// many frames.
     #[arg(long)]
     pub frames: Option<usize>,
     /// Seed: same preset and seed give identical bytes.
@@ -44,10 +45,10 @@ pub struct Args {
     /// Also write ground-truth flow from frame t to t+K (`flow/<ts>.flo`, Middlebury).
     #[arg(long, value_name = "K")]
     pub flow: Option<usize>,
-    /// Write a contact sheet of all presets to this PNG: a 3×3 grid of blocks in the order
-    /// static, walking_xyz, walking_static / walking_rpy, walking_halfsphere, sitting /
-    /// flying, occlusion, loop; in each block rows are t = 0, 2, 4 s and columns rgb,
-    /// background, mask, depth.
+    /// Write a contact sheet of all presets to this PNG: a 4×4 grid of blocks in the order
+    /// static, walking_xyz, walking_static, walking_rpy / walking_halfsphere, sitting,
+    /// flying, occlusion / loop, person_tracking, crowd, moving_box / placing_box, balloon;
+    /// in each block rows are t = 0, 2, 4 s and columns rgb, background, mask, depth.
     #[arg(long, value_name = "OUT.png")]
     pub preview: Option<PathBuf>,
     /// Sensor realism.
@@ -81,6 +82,15 @@ pub struct Args {
     /// Number of virtual objects for --augment.
     #[arg(long, default_value_t = 3)]
     pub objects: usize,
+    /// --augment: boxes that rest in view for 3 s, are pushed across it and rest again.
+    #[arg(long, default_value_t = 0)]
+    pub boxes: usize,
+    /// --augment: balls thrown back and forth across the view.
+    #[arg(long, default_value_t = 0)]
+    pub balls: usize,
+    /// --augment: people walking across the view close to the camera (a crowd).
+    #[arg(long, default_value_t = 0)]
+    pub crowd: usize,
 }
 
 /// The generator parameters of the arguments (the demo uses it too).
@@ -114,7 +124,7 @@ pub(crate) fn params(args: &Args) -> anyhow::Result<SynthParams> {
     };
     Ok(SynthParams {
         preset,
-        frames: args.frames.unwrap_or(300),
+        frames: args.frames.unwrap_or(preset.default_frames()),
         seed: args.seed,
         scene: dynapix_synth::SceneParams::for_width(cam.width),
         camera: cam,
@@ -137,6 +147,9 @@ pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
         let params = dynapix_synth::augment::AugmentParams {
             seed: args.seed,
             objects: args.objects,
+            boxes: args.boxes,
+            balls: args.balls,
+            crowd: args.crowd,
             ..Default::default()
         };
         let bar = bars.adopt(ProgressBar::new(0));

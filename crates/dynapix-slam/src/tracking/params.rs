@@ -67,6 +67,20 @@ pub struct TrackingParams {
     /// (0 = off, as ORB-SLAM2). Among movers the few static matches of the last frame can be
     /// too few for the motion model while the local map still holds enough static points.
     pub predicted_frames: u64,
+    /// Relocalisation against the local map: while lost, when the bag-of-words
+    /// relocalisation (and predicted tracking) fail, the frame is matched by projection
+    /// against the last local map from the last tracked pose, held and extrapolated, within
+    /// `local_reloc_th`; it is then accepted as after any relocalisation (≥
+    /// `local_min_inliers_reloc` local-map inliers). Off in ORB-SLAM2 (false).
+    pub local_relocalisation: bool,
+    /// Consistency check of a pose found with few matches: a predicted frame is refused, and
+    /// the final pose refinement keeps the tracked pose, when the optimised pose moves the
+    /// median projection of the local map (the reference keyframe's points for the
+    /// refinement) by more than the widest window of the local-map search that found the
+    /// matches (4 · `local_th_reloc` px). Off in ORB-SLAM2 (false).
+    pub pose_consistency: bool,
+    /// Search radius factor of the local-map relocalisation (15, the motion model's).
+    pub local_reloc_th: f32,
 }
 
 impl Default for TrackingParams {
@@ -99,6 +113,9 @@ impl Default for TrackingParams {
             matcher: MatcherParams::default(),
             reloc: RelocParams::default(),
             predicted_frames: 0,
+            local_relocalisation: false,
+            pose_consistency: false,
+            local_reloc_th: 15.0,
         }
     }
 }

@@ -571,6 +571,8 @@ impl Config {
         if mode == Mode::Paper {
             p.static_features_min_weight = Some(0.5);
             p.tracking.predicted_frames = 30;
+            p.tracking.local_relocalisation = true;
+            p.tracking.pose_consistency = true;
             p.final_pose_refinement = true;
         }
         p
@@ -762,6 +764,8 @@ impl Config {
             // ORB-SLAM2 mode is ORB-SLAM2: no static-feature mask, no predicted tracking.
             p.static_features_min_weight = None;
             p.tracking.predicted_frames = 0;
+            p.tracking.local_relocalisation = false;
+            p.tracking.pose_consistency = false;
             p.final_global_ba = false;
             p.final_pose_refinement = false;
         }
@@ -791,6 +795,8 @@ mod tests {
         assert_eq!(orb.map.dynapix.weighting, Weighting::Off);
         assert_eq!(p.system_params().static_features_min_weight, Some(0.5));
         assert_eq!(p.system_params().tracking.predicted_frames, 30);
+        assert!(p.system_params().tracking.local_relocalisation);
+        assert!(p.system_params().tracking.pose_consistency);
         // The final refinements are offline DynaPix only.
         assert!(p.system_params().final_pose_refinement);
         assert!(!orb.final_pose_refinement && !orb.final_global_ba);
