@@ -200,9 +200,11 @@ struct DecodedFrames {
     enabled: Arc<std::sync::atomic::AtomicBool>,
     /// Bytes used and the frames kept, by index.
     kept: Arc<Mutex<(usize, HashMap<usize, DecodedFrame>)>>,
-    /// The FAST corners of the frames' grey images, by index (kept while `enabled`; a few
-    /// tens of kilobytes per frame, outside the budget).
+    /// The FAST corners of the frames' grey images, by index (kept while `enabled`, a few
+    /// tens of kilobytes per frame counted in the budget).
     corners: Arc<Mutex<HashMap<usize, Arc<FastCorners>>>>,
+    /// The most bytes kept at once since the input was opened.
+    peak: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl std::fmt::Debug for DecodedFrames {
@@ -223,7 +225,19 @@ impl DecodedFrames {
             enabled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
             kept: Arc::new(Mutex::new((0, HashMap::new()))),
             corners: Arc::new(Mutex::new(HashMap::new())),
+            peak: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
         }
+    }
+
+    /// Takes `bytes` of the budget when they fit (the lock on the kept frames held).
+    fn charge(&self, used: &mut usize, bytes: usize) -> bool {
+        if *used + bytes > self.budget {
+            return false;
+        }
+        *used += bytes;
+        self.peak
+            .fetch_max(*used, std::sync::atomic::Ordering::Relaxed);
+        true
     }
 
     fn get(&self, i: usize) -> Option<DecodedFrame> {
@@ -237,10 +251,9 @@ impl DecodedFrames {
         }
         let bytes = rgb.as_raw().len() + std::mem::size_of_val(depth.as_raw().as_slice());
         let Ok(mut k) = self.kept.lock() else { return };
-        if k.1.contains_key(&i) || k.0 + bytes > self.budget {
+        if k.1.contains_key(&i) || !self.charge(&mut k.0, bytes) {
             return;
         }
-        k.0 += bytes;
         k.1.insert(i, Arc::new((rgb.clone(), depth.clone())));
     }
 }
@@ -557,19 +570,32 @@ impl Input {
     }
 
     /// Keeps the FAST corners of frame `i`'s grey image for the later passes of a run, while
-    /// decoded frames are kept ([`Input::keep_decoded_frames`]): the corners do not depend on
-    /// a pass's weights, so every pass after the first only applies its own mask to them.
+    /// decoded frames are kept ([`Input::keep_decoded_frames`]) and they fit the budget
+    /// [`SequenceConfig::decoded_cache_mib`] (shared with the frames): the corners do not
+    /// depend on a pass's weights, so every pass after the first only applies its own mask to
+    /// them (a frame whose corners were not kept detects them again, the same ones).
     pub fn keep_fast_corners(&self, i: usize, corners: Arc<FastCorners>) {
-        if !self
-            .decoded
-            .enabled
-            .load(std::sync::atomic::Ordering::Relaxed)
-        {
+        let d = &self.decoded;
+        if !d.enabled.load(std::sync::atomic::Ordering::Relaxed) {
             return;
         }
-        if let Ok(mut c) = self.decoded.corners.lock() {
-            c.entry(i).or_insert(corners);
+        // Three f32 (x, y, response) per corner.
+        let bytes = corners.len() * std::mem::size_of::<[f32; 3]>();
+        let (Ok(mut k), Ok(mut c)) = (d.kept.lock(), d.corners.lock()) else {
+            return;
+        };
+        if c.contains_key(&i) || !d.charge(&mut k.0, bytes) {
+            return;
         }
+        c.insert(i, corners);
+    }
+
+    /// The most bytes of decoded frames and FAST corners kept at once since the input was
+    /// opened (at most [`SequenceConfig::decoded_cache_mib`]).
+    pub fn decoded_peak_bytes(&self) -> usize {
+        self.decoded
+            .peak
+            .load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Number of decoded frames kept in memory between passes

@@ -75,6 +75,7 @@ pub mod poses;
 pub mod profile;
 pub mod progress;
 pub mod slam;
+pub mod spill;
 pub mod store;
 pub mod stream;
 pub mod synthetic;

@@ -318,6 +318,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
     match execute_into(&spec, &runner, staged.path(), &mut record, bars) {
         Ok(outcome) => {
             record["complete"] = json!(true);
+            record["invalid_depth"] = json!(spec.input.sequence.invalid_depth());
             write_json(&staged.path().join("run.json"), &record)?;
             staged.commit()?;
             Ok(outcome)
@@ -338,6 +339,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
                 return Err(e);
             }
             merge(&mut record, incomplete(&e));
+            record["invalid_depth"] = json!(spec.input.sequence.invalid_depth());
             write_json(&staged.path().join("run.json"), &record)?;
             let out = staged.commit()?;
             eprintln!(
@@ -482,6 +484,7 @@ pub fn execute_online(
     } else {
         record["complete"] = json!(true);
     }
+    record["invalid_depth"] = json!(input.sequence.invalid_depth());
     write_json(&staged.path().join("run.json"), &record)?;
     let written = staged.commit()?;
     if result.is_err() {
