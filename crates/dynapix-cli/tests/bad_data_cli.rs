@@ -423,7 +423,10 @@ fn run_json_counts_the_depth_read_as_missing() {
         }
         d.save(&depth).unwrap();
     }
-    for extra in [&["--method", "orbslam2"][..], &["--method", "orbslam2", "--online"]] {
+    for extra in [
+        &["--method", "orbslam2"][..],
+        &["--method", "orbslam2", "--online"],
+    ] {
         let out = tmp.path().join("out");
         let o = run(&seq, &out, extra);
         assert!(o.status.success(), "{extra:?}: {}", stderr(&o));

@@ -351,7 +351,12 @@ fn a_weighted_pass_that_tracks_nothing_ends_the_run_like_an_untracked_first_pass
     let o = run(
         &seq,
         &out,
-        &["--flow-preset", "ultrafast", "--no-cache", "--allow-untracked"],
+        &[
+            "--flow-preset",
+            "ultrafast",
+            "--no-cache",
+            "--allow-untracked",
+        ],
     );
     assert!(o.status.success(), "{}", stderr(&o));
 }

@@ -509,10 +509,10 @@ impl GeometricInput {
             .write()
             .map_err(|_| Error::Input("geometric cue: a worker thread panicked".into()))?;
         let (depths, loaded) = &mut *d;
-        for k in 0..depths.len() {
-            if loaded[k] && need.binary_search(&k).is_err() {
-                depths[k].depth = FloatImage::new(0, 0);
-                loaded[k] = false;
+        for (k, (depth, held)) in depths.iter_mut().zip(loaded.iter_mut()).enumerate() {
+            if *held && need.binary_search(&k).is_err() {
+                depth.depth = FloatImage::new(0, 0);
+                *held = false;
             }
         }
         for (k, w) in new {

@@ -593,9 +593,7 @@ impl Input {
     /// The most bytes of decoded frames and FAST corners kept at once since the input was
     /// opened (at most [`SequenceConfig::decoded_cache_mib`]).
     pub fn decoded_peak_bytes(&self) -> usize {
-        self.decoded
-            .peak
-            .load(std::sync::atomic::Ordering::Relaxed)
+        self.decoded.peak.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Number of decoded frames kept in memory between passes

@@ -316,7 +316,9 @@ impl MapSet {
 
     /// Bytes the maps of this set hold in memory (not on disk): O(1) per frame.
     pub fn bytes_in_memory(&self) -> usize {
-        self.spilled.as_ref().map_or(0, SpilledMaps::bytes_in_memory)
+        self.spilled
+            .as_ref()
+            .map_or(0, SpilledMaps::bytes_in_memory)
     }
 
     /// The static weights of frame `i` (w = stored/1000), `None` when the set has none.
@@ -393,7 +395,9 @@ impl<'a> MapSink<'a> {
         let stored = stored_map(p, i)?;
         match &self.spill {
             Some(s) => s.put(i, &stored),
-            None => Err(Error::Input(format!("motion maps: nowhere to keep frame {i}"))),
+            None => Err(Error::Input(format!(
+                "motion maps: nowhere to keep frame {i}"
+            ))),
         }
     }
 

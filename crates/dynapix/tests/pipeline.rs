@@ -343,7 +343,11 @@ fn an_offline_run_keeps_no_frame_data_in_memory() {
         assert!(m.dir().is_none());
     }
     assert!(out.maps.len() >= 2);
-    assert!(out.maps[..out.maps.len() - 1].iter().all(|m| m.spilled.is_none()));
+    assert!(
+        out.maps[..out.maps.len() - 1]
+            .iter()
+            .all(|m| m.spilled.is_none())
+    );
     for m in [last, &rigidity] {
         let spill = m.spilled.as_ref().unwrap();
         assert_eq!(spill.frames(), FRAMES);
