@@ -406,3 +406,36 @@ fn closed_sets_list_their_valid_values() {
         );
     }
 }
+
+/// Depth pixels at the sensor's saturation value are counted in `run.json` (frames and
+/// pixels read as missing), offline and online.
+#[test]
+fn run_json_counts_the_depth_read_as_missing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path());
+    for i in [4, 9] {
+        let (_, depth) = frame_files(&seq, i);
+        let mut d = image::open(&depth).unwrap().to_luma16();
+        for y in 0..10 {
+            for x in 0..(10 + i as u32) {
+                d.put_pixel(x, y, image::Luma([u16::MAX]));
+            }
+        }
+        d.save(&depth).unwrap();
+    }
+    for extra in [
+        &["--method", "orbslam2"][..],
+        &["--method", "orbslam2", "--online"],
+    ] {
+        let out = tmp.path().join("out");
+        let o = run(&seq, &out, extra);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let rec = json(&out.join("run.json"));
+        assert_eq!(rec["invalid_depth"]["frames"], 2, "{extra:?}");
+        assert_eq!(
+            rec["invalid_depth"]["pixels"],
+            10 * (10 + 4) + 10 * (10 + 9),
+            "{extra:?}"
+        );
+    }
+}

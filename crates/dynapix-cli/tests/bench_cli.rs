@@ -121,7 +121,7 @@ fn bench_reports_each_stage_of_the_method_that_ran() {
     for s in ["rigidity: flow", "rigidity: fit", "geometric: static depth"] {
         assert!(stages.contains(&s.to_string()), "{s} missing: {stages:?}");
     }
-    // A cold bench keeps its maps in memory: nothing written, nothing read back.
+    // A cold bench keeps its maps in a temporary file: no map file written or read back.
     for s in ["write maps", "read maps"] {
         assert!(!stages.contains(&s.to_string()), "{s} ran: {stages:?}");
     }

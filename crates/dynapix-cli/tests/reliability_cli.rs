@@ -309,3 +309,54 @@ fn read_only_sequences_conventions_and_short_runs() {
     );
     assert!(!said.contains("no overlap"), "{said}");
 }
+
+/// A weighted pass that tracks nothing (here the first one, weighted by the sequence's own
+/// maps that call every pixel dynamic) leaves the next pass without poses: the run ends with
+/// it as its result, like a first pass that tracked nothing (exit 1 with the outputs written,
+/// exit 0 with `--allow-untracked`).
+#[test]
+fn a_weighted_pass_that_tracks_nothing_ends_the_run_like_an_untracked_first_pass() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = synth(tmp.path(), "seq");
+    let prob = seq.join("prob");
+    std::fs::create_dir_all(&prob).unwrap();
+    for e in std::fs::read_dir(seq.join("rgb")).unwrap() {
+        let p = e.unwrap().path();
+        // Stored 0 = weight 0 = P 1 everywhere.
+        let name = p.with_extension("png");
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(160, 120)
+            .save(prob.join(name.file_name().unwrap()))
+            .unwrap();
+    }
+    let out = tmp.path().join("out");
+    let o = run(&seq, &out, &["--flow-preset", "ultrafast", "--no-cache"]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("nothing tracked") && err.contains("--allow-untracked"),
+        "{err}"
+    );
+    let status = std::fs::read_to_string(out.join("status.txt")).unwrap();
+    assert_eq!(
+        status.lines().filter(|l| !l.starts_with('#')).count(),
+        20,
+        "{status}"
+    );
+    assert!(!status.contains(" tracked"), "{status}");
+    let j = json(&out.join("run.json"));
+    assert_eq!(j["complete"], true);
+    let why = j["nothing_tracked"].as_str().unwrap_or_default();
+    assert!(why.contains("weighted pass 1 tracked no frame"), "{j}");
+    assert_eq!(j["passes"].as_array().map(Vec::len), Some(1), "{j}");
+    let o = run(
+        &seq,
+        &out,
+        &[
+            "--flow-preset",
+            "ultrafast",
+            "--no-cache",
+            "--allow-untracked",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+}

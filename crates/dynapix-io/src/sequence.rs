@@ -210,7 +210,7 @@ pub struct Sequence {
 }
 
 /// Depth pixels read as missing because they were no measurement ([`DepthValidity`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct InvalidDepth {
     /// Frames with at least one such pixel.
     pub frames: usize,

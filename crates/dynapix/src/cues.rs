@@ -17,7 +17,7 @@ use dynapix_flow::dis::DisFlow;
 use dynapix_geometry::{PinholeCamera, Se3};
 use dynapix_io::MotionProbability;
 use dynapix_motion::moving::to_gray;
-use dynapix_motion::static_depth::{WorkingDepth, geometric_frame};
+use dynapix_motion::static_depth::{WorkingDepth, geometric_frame, select_views};
 use dynapix_motion::{
     FloatImage, PairResiduals, RigidFit, RigidFitError, RigidFrame, RigidityParams,
     StaticDepthParams,
@@ -336,8 +336,8 @@ fn rigid_frame(g: &GrayDepth, offset: i64) -> RigidFrame<'_> {
 
 /// The rigidity maps of `job`, with the cache folder `root` when given: a folder
 /// `rigidity-<key>` is reused when its record matches the job exactly and every map exists,
-/// else the maps are computed, kept in memory and written there as they come. Without a
-/// cache nothing is written.
+/// else the maps are computed and written there as they come. Without a cache they go to a
+/// temporary file the run owns and nothing else is written.
 pub fn cached_rigidity(
     job: &RigidityJob<'_>,
     root: Option<&Path>,
@@ -347,16 +347,10 @@ pub fn cached_rigidity(
     let config = job.record();
     let cache = root.map(|r| MapFolder::in_cache(r, "rigidity", job.input, &config));
     let reused = cache.as_ref().is_some_and(|c| c.2);
-    let memory = if reused {
+    let spilled = if reused {
         None
     } else {
-        Some(compute_rigidity(
-            job,
-            cache.as_ref().map(|c| &c.0),
-            &config,
-            label,
-            progress,
-        )?)
+        compute_rigidity(job, cache.as_ref().map(|c| &c.0), &config, label, progress)?
     };
     let source = match (&cache, reused) {
         (None, _) => "computed (no cache)",
@@ -375,26 +369,26 @@ pub fn cached_rigidity(
             "config": config,
         }),
         folder,
-        memory,
+        spilled,
         ground_truth: Some(false),
     })
 }
 
-/// Computes the rigidity maps of `job` into memory, and into `folder` when given (recorded
-/// complete at the end).
+/// Computes the rigidity maps of `job` into `folder` when given (recorded complete at the
+/// end), else into a temporary file (returned).
 fn compute_rigidity(
     job: &RigidityJob<'_>,
     folder: Option<&MapFolder>,
     config: &Value,
     label: &str,
     progress: &dyn Progress,
-) -> Result<crate::store::MemoryMaps> {
+) -> Result<Option<crate::spill::SpilledMaps>> {
     let _phase = tracing::info_span!(target: "dynapix::phase", "rigidity maps").entered();
     if let Some(f) = folder {
         f.write_record(job.input, config, MapsStatus::Running, Value::Null)?;
     }
     let started = std::time::Instant::now();
-    let sink = MapSink::new(job.input, folder);
+    let sink = MapSink::new(job.input, folder)?;
     let stats = job.run(progress, label, |i, p| {
         sink.put(i, &MotionProbability::new(p))
     })?;
@@ -414,10 +408,13 @@ fn compute_rigidity(
     Ok(sink.finish())
 }
 
-/// The inputs of the geometric cue for a whole sequence: every frame's depth at the working
-/// resolution, the frame times and the poses of the pass before.
+/// The inputs of the geometric cue for a sequence: the depth of the frames at the working
+/// resolution (all of them, or a window around the frames being computed), the frame times
+/// and the poses of the pass before.
 pub struct GeometricInput {
-    depths: Vec<WorkingDepth>,
+    /// Every frame's depth slot; a slot outside the window holds an empty image and is
+    /// marked not loaded.
+    depths: std::sync::RwLock<(Vec<WorkingDepth>, Vec<bool>)>,
     stamps: Vec<f64>,
     poses: Vec<Option<Se3>>,
     camera: PinholeCamera,
@@ -428,6 +425,16 @@ impl GeometricInput {
     /// Reads every frame's depth (in parallel) and takes the poses; a bad frame
     /// ([`Input::bad_frames`]) is left out (no depth, no pose).
     pub fn load(input: &Input, poses: &FramePoses, params: &StaticDepthParams) -> Result<Self> {
+        let g = Self::windowed(input, poses, params)?;
+        let all: Vec<usize> = (0..input.len()).collect();
+        g.prepare(input, &all)?;
+        Ok(g)
+    }
+
+    /// Takes the poses and reads no depth yet: [`GeometricInput::prepare`] reads the depths a
+    /// group of frames needs and drops the others, so memory holds a window of frames, not
+    /// the sequence.
+    pub fn windowed(input: &Input, poses: &FramePoses, params: &StaticDepthParams) -> Result<Self> {
         params
             .validate()
             .map_err(|e| Error::config(format!("motion.static_depth: {e}")))?;
@@ -438,24 +445,13 @@ impl GeometricInput {
                 poses.poses.len()
             )));
         }
-        let cam = input.camera.pinhole();
-        let depths = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                if input.is_bad(i) {
-                    return Ok(WorkingDepth::new(
-                        &FloatImage::new(cam.width, cam.height),
-                        params,
-                    ));
-                }
-                let d = input.load_depth(i)?;
-                Ok(WorkingDepth::new(&d, params))
-            })
-            .collect::<Vec<Result<_>>>()
-            .into_iter()
-            .collect::<Result<Vec<_>>>()?;
+        let empty = || WorkingDepth {
+            factor: 1,
+            full_size: (0, 0),
+            depth: FloatImage::new(0, 0),
+        };
         Ok(Self {
-            depths,
+            depths: std::sync::RwLock::new(((0..n).map(|_| empty()).collect(), vec![false; n])),
             stamps: input.timestamps(),
             poses: (poses.poses.iter().enumerate())
                 .map(|(i, p)| (!input.is_bad(i)).then_some(*p))
@@ -465,14 +461,93 @@ impl GeometricInput {
         })
     }
 
-    /// The geometric cue of frame `i` (full resolution).
+    /// The frames whose depth the geometric cue of `frames` reads: each frame and the views
+    /// it selects (the selection of [`geometric_frame`], which depends on times and poses
+    /// only), sorted.
+    fn needed(&self, frames: &[usize]) -> Vec<usize> {
+        let n = self.stamps.len();
+        let usable = |s: usize| matches!(self.poses.get(s), Some(Some(_))) && s < n;
+        let mut need: Vec<usize> = frames
+            .iter()
+            .flat_map(|&t| {
+                std::iter::once(t).chain(select_views(&self.stamps, t, usable, &self.params))
+            })
+            .filter(|&s| s < n)
+            .collect();
+        need.sort_unstable();
+        need.dedup();
+        need
+    }
+
+    /// Reads (in parallel) the depths that the geometric cue of `frames` needs and not yet
+    /// read, and drops every other depth.
+    pub fn prepare(&self, input: &Input, frames: &[usize]) -> Result<()> {
+        let need = self.needed(frames);
+        let missing: Vec<usize> = {
+            let d = self
+                .depths
+                .read()
+                .map_err(|_| Error::Input("geometric cue: a worker thread panicked".into()))?;
+            need.iter().copied().filter(|&k| !d.1[k]).collect()
+        };
+        let cam = &self.camera;
+        let params = &self.params;
+        let new = missing
+            .par_iter()
+            .map(|&i| {
+                if input.is_bad(i) {
+                    let zero = FloatImage::new(cam.width, cam.height);
+                    return Ok((i, WorkingDepth::new(&zero, params)));
+                }
+                let d = input.load_depth(i)?;
+                Ok((i, WorkingDepth::new(&d, params)))
+            })
+            .collect::<Vec<Result<_>>>()
+            .into_iter()
+            .collect::<Result<Vec<_>>>()?;
+        let mut d = self
+            .depths
+            .write()
+            .map_err(|_| Error::Input("geometric cue: a worker thread panicked".into()))?;
+        let (depths, loaded) = &mut *d;
+        for (k, (depth, held)) in depths.iter_mut().zip(loaded.iter_mut()).enumerate() {
+            if *held && need.binary_search(&k).is_err() {
+                depth.depth = FloatImage::new(0, 0);
+                *held = false;
+            }
+        }
+        for (k, w) in new {
+            depths[k] = w;
+            loaded[k] = true;
+        }
+        Ok(())
+    }
+
+    /// Number of frames whose depth is held now.
+    pub fn frames_held(&self) -> usize {
+        self.depths
+            .read()
+            .map_or(0, |d| d.1.iter().filter(|&&l| l).count())
+    }
+
+    /// The geometric cue of frame `i` (full resolution); its depth and its views' must have
+    /// been read ([`GeometricInput::prepare`]).
     pub fn frame(&self, i: usize) -> Result<FloatImage> {
+        let d = self
+            .depths
+            .read()
+            .map_err(|_| Error::Input("geometric cue: a worker thread panicked".into()))?;
+        if !d.1.get(i).copied().unwrap_or(false) {
+            return Err(Error::Input(format!(
+                "frame {i}: geometric cue: its depth was not read"
+            )));
+        }
         geometric_frame(
             &self.camera,
             i,
             &self.stamps,
             &self.poses,
-            &self.depths,
+            &d.0,
             &self.params,
         )
         .map_err(|e| Error::Input(format!("frame {i}: geometric cue: {e}")))

@@ -82,6 +82,7 @@ mod profile;
 mod progress;
 mod record;
 mod slam;
+mod spill;
 mod store;
 mod stream;
 

@@ -346,14 +346,20 @@ impl<'a> MapJob<'a> {
         G: FnMut(usize, R),
     {
         let started = std::time::Instant::now();
-        let geo = if self.cues.geometric {
-            Some(GeometricInput::load(
+        // The paper's terms visit the frames in their own order: every depth is read first.
+        // Otherwise the chunks below read the depths each needs, a window of the sequence.
+        let geo = match (self.cues.geometric, self.cues.paper) {
+            (false, _) => None,
+            (true, true) => Some(GeometricInput::load(
                 self.input,
                 self.poses,
                 &self.static_depth,
-            )?)
-        } else {
-            None
+            )?),
+            (true, false) => Some(GeometricInput::windowed(
+                self.input,
+                self.poses,
+                &self.static_depth,
+            )?),
         };
         let rig_job = RigidityJob::new(self.input, self.rigidity_params.clone());
         let cam = self.input.camera.pinhole();
@@ -410,6 +416,9 @@ impl<'a> MapJob<'a> {
         // wait measurably). What a frame gets does not depend on the chunking.
         let chunk = 16 * rayon::current_num_threads().max(1);
         for part in frames.chunks(chunk) {
+            if let Some(g) = &geo {
+                g.prepare(self.input, part)?;
+            }
             let out = part
                 .par_iter()
                 .map(|&i| {
@@ -443,8 +452,8 @@ impl<'a> MapJob<'a> {
 
 /// The maps of `job`, with the cache folder `root` when given: a folder `maps-<key>` is
 /// reused when its record matches the job exactly and every map exists, else the maps are
-/// computed, kept in memory and written there as they come. Without a cache nothing is
-/// written.
+/// computed and written there as they come. Without a cache they go to a temporary file the
+/// run owns ([`crate::spill::SpilledMaps`]) and nothing else is written.
 pub fn cached_maps(
     job: &MapJob<'_>,
     root: Option<&Path>,
@@ -454,10 +463,10 @@ pub fn cached_maps(
     let config = job.record();
     let ground_truth = job.poses.origin.is_ground_truth();
     let Some(root) = root else {
-        let memory = compute_maps(job, None, &config, label, progress)?.0;
+        let spilled = compute_maps(job, None, &config, label, progress)?.0;
         return Ok(MapSet {
             folder: None,
-            memory: Some(memory),
+            spilled,
             record: json!({
                 "source": "computed (no cache)",
                 "dir": null,
@@ -469,11 +478,9 @@ pub fn cached_maps(
         });
     };
     let (folder, key, reused) = MapFolder::in_cache(root, "maps", job.input, &config);
-    let memory = if reused {
-        None
-    } else {
-        Some(compute_maps(job, Some(&folder), &config, label, progress)?.0)
-    };
+    if !reused {
+        compute_maps(job, Some(&folder), &config, label, progress)?;
+    }
     let record = json!({
         "source": if reused { "cache (key matched)" } else { "computed" },
         "dir": folder.dir,
@@ -484,7 +491,7 @@ pub fn cached_maps(
     });
     Ok(MapSet {
         folder: Some(folder),
-        memory,
+        spilled: None,
         record,
         ground_truth: Some(ground_truth),
     })
@@ -502,21 +509,21 @@ pub fn compute_into(
     compute_maps(job, Some(folder), config, label, progress).map(|(_, stats)| stats)
 }
 
-/// Computes every frame of `job` (but the bad frames of a run that skips them) into memory,
-/// and into `folder` when given (recorded complete at the end).
+/// Computes every frame of `job` (but the bad frames of a run that skips them) into `folder`
+/// when given (recorded complete at the end), else into a temporary file (returned).
 fn compute_maps(
     job: &MapJob<'_>,
     folder: Option<&MapFolder>,
     config: &Value,
     label: &str,
     progress: &dyn Progress,
-) -> Result<(crate::store::MemoryMaps, SequenceStats)> {
+) -> Result<(Option<crate::spill::SpilledMaps>, SequenceStats)> {
     let _phase = tracing::info_span!(target: "dynapix::phase", "motion maps").entered();
     let n = job.input.len();
     if let Some(f) = folder {
         f.write_record(job.input, config, MapsStatus::Running, Value::Null)?;
     }
-    let sink = MapSink::new(job.input, folder);
+    let sink = MapSink::new(job.input, folder)?;
     let all: Vec<usize> = (0..n).filter(|&i| !job.input.is_bad(i)).collect();
     let task = Task::begin(progress, label, all.len());
     let stats = job.run(

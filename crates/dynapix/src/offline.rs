@@ -16,9 +16,12 @@
 //! - **Weighted passes**: `passes.weighted` of them (paper mode 2, reference mode 1 = the
 //!   paper's schedule); P of each combines the enabled cues ([`crate::Cues`]) by noisy-or.
 //!
-//! Everything is passed in memory: the maps of a pass are kept in their stored 16-bit form
-//! ([`crate::store`]), so a run with a fresh cache, a run from the cache and a run without a
-//! cache ([`RunOptions::cache_dir`] `None`: nothing is written) track with the same weights.
+//! Everything is passed within the process: the maps of a pass are kept in their stored
+//! 16-bit form in the cache folder, or without a cache ([`RunOptions::cache_dir`] `None`) in
+//! a temporary file the run owns ([`crate::store`], [`crate::spill`]), so a run with a fresh
+//! cache, a run from the cache and a run without a cache track with the same weights. A pass
+//! reads each frame's map when it reaches it; what is kept in memory per frame is small
+//! (poses, statuses, counters), so memory does not grow with the sequence beyond that.
 //!
 //! Nothing here parses command lines or prints; progress goes to a [`Progress`] callback and
 //! the outputs (trajectories, status, the provenance record) are returned for the caller to
@@ -317,6 +320,12 @@ impl<'a> OfflineRunner<'a> {
     /// The configuration.
     pub fn config(&self) -> &Config {
         self.config
+    }
+
+    /// The input this runner reads: the caller's, with a decoded-frame cache of the run's
+    /// own ([`Input::for_run`]; e.g. [`Input::decoded_peak_bytes`] of this run).
+    pub fn input(&self) -> &Input {
+        &self.input
     }
 
     /// The cache folder, when the run has one ([`RunOptions::cache_dir`]).
@@ -644,7 +653,20 @@ impl<'a> OfflineRunner<'a> {
         let mut passes: Vec<PassOutput> = Vec::new();
         let n = self.config.passes.weighted;
         let fixed = self.config.motion.poses != PoseSource::Own;
+        let mut untracked = None;
         for k in 1..=n {
+            let own_poses = !fixed && MapJob::needs_poses(&self.input, self.config);
+            if own_poses && passes.last().is_some_and(|p| p.trajectory.is_empty()) {
+                // No poses for the next pass's maps: the pass that tracked nothing is the
+                // result, like a first pass that tracked nothing.
+                untracked = Some(format!(
+                    "weighted pass {} tracked no frame: no poses for the maps of pass {k}, \
+                     which was not run; the result is pass {}",
+                    k - 1,
+                    k - 1
+                ));
+                break;
+            }
             let m = if k == 1 {
                 first_maps
                     .clone()
@@ -667,6 +689,9 @@ impl<'a> OfflineRunner<'a> {
                 format!("{method} pass {k}")
             };
             let out = self.pass(method, Some(&m), seed, &label, progress)?;
+            // The maps of the passes before are done with: their temporary files go (a set
+            // that `m` shares stays); the records stay.
+            maps.iter_mut().for_each(MapSet::release);
             maps.push(m);
             passes.push(out);
         }
@@ -674,6 +699,11 @@ impl<'a> OfflineRunner<'a> {
             .iter()
             .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
         record.ground_truth_used_at_run_time = gt_used;
+        if let Some(why) = untracked {
+            record.nothing_tracked = Some(why);
+        } else if passes.last().is_some_and(|p| p.trajectory.is_empty()) {
+            record.nothing_tracked = Some("the final weighted pass tracked no frame".into());
+        }
         record.first_pass = first.as_ref().map(|f| f.record.clone());
         record.prob = maps.first().map(|m| m.record.clone());
         record.passes = Some(
@@ -731,6 +761,7 @@ impl<'a> OfflineRunner<'a> {
             prob: None,
             passes: None,
             nothing_tracked: None,
+            invalid_depth: None,
             runs: None,
             seed: None,
             earlier_passes: None,

@@ -73,9 +73,13 @@ pub struct RunRecord {
     /// The passes of the (first) run: their maps' provenance and counters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub passes: Option<Vec<PassRecord>>,
-    /// Why the run ended with its first pass (it tracked no frame).
+    /// Why the run ended early: a pass (the first, or a weighted one whose poses the next
+    /// needed) tracked no frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nothing_tracked: Option<String>,
+    /// The depth read as missing because it was no measurement (saturated or out of range).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub invalid_depth: Option<dynapix_io::InvalidDepth>,
     /// Runs of the method (relocalisation seeds `seed`, `seed + 1`, …).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub runs: Option<usize>,

@@ -3,7 +3,7 @@
 //! a map job and its folder, a SLAM session and one pass, the frame poses the maps are made
 //! with. A whole run goes through [`crate::OfflineRunner`] or [`crate::run_online`] instead.
 
-pub use crate::cues::RigidityJob;
+pub use crate::cues::{GeometricInput, RigidityJob};
 pub use crate::maps::{CacheCheck, MapFolder, MapJob, MapSet, compute_into};
 pub use crate::offline::folder_writable;
 pub use crate::poses::{FramePoses, PoseOrigin, from_source as poses_from_source};

@@ -1,15 +1,16 @@
-//! Where the maps of a pass live: in memory (computed by this run, in their stored 16-bit
-//! form), in a folder (a cache hit, a sequence's own `prob/`), or both (computed by this run
-//! and written to its cache as a side effect).
+//! Where the maps of a pass live: in a folder (a cache hit, a sequence's own `prob/`, or
+//! computed by this run and written to its cache as they come), or, for a run without a
+//! cache, in a temporary file the run owns ([`SpilledMaps`], their stored 16-bit form). None
+//! is kept in memory: a pass reads each frame's map when it reaches the frame, so the memory
+//! of a run does not grow with the number of frames.
 //!
 //! A folder holds one 16-bit PNG per frame, named like the rgb image (`trunc((1 − P)·1000)`,
 //! the reference format), and `motion.json`: `{"sequence", "config", "status", "results"}`.
-//! Maps kept in memory hold the same 16-bit values, so a pass reads the same weights from a
-//! fresh run, a cached run and a run without any folder.
+//! Spilled maps hold the same 16-bit values, so a pass reads the same weights from a fresh
+//! run, a cached run and a run without any folder.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use dynapix_io::weights::read_prob_png_raw;
 use dynapix_io::weights::write_motion_probability;
@@ -21,6 +22,7 @@ use crate::error::{Error, Result};
 use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::record::{FileFingerprint, MapsStatus, MotionRecord};
+use crate::spill::SpilledMaps;
 
 /// The record file of a map folder.
 pub const RECORD_FILE: &str = crate::record::MOTION_RECORD_FILE;
@@ -221,10 +223,6 @@ pub enum CacheCheck {
     Damaged(String),
 }
 
-/// The maps of a sequence kept in memory, frame by frame, in their stored 16-bit form
-/// (`None`: no map, e.g. a skipped bad frame).
-pub type MemoryMaps = Arc<[Option<Gray16Image>]>;
-
 /// The stored 16-bit form of `p` (the quantisation of the map files); a NaN probability is
 /// refused like the file writer refuses it, so a run with and without a cache fail alike.
 pub fn stored_map(p: &MotionProbability, i: usize) -> Result<Gray16Image> {
@@ -241,8 +239,9 @@ pub fn stored_map(p: &MotionProbability, i: usize) -> Result<Gray16Image> {
 pub struct MapSet {
     /// The folder of the maps, when they are on disk.
     pub folder: Option<MapFolder>,
-    /// The maps in memory, when this run computed them.
-    pub memory: Option<MemoryMaps>,
+    /// The maps in a temporary file, when this run computed them without a cache folder
+    /// (`None` too once the run released them, see [`MapSet::release`]).
+    pub spilled: Option<SpilledMaps>,
     /// Provenance (written into `run.json`).
     pub record: Value,
     /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
@@ -275,7 +274,7 @@ impl MapSet {
         };
         Ok(Self {
             folder: Some(folder),
-            memory: None,
+            spilled: None,
             record,
             ground_truth,
         })
@@ -286,16 +285,31 @@ impl MapSet {
         self.folder.as_ref().map(|f| f.dir.as_path())
     }
 
-    /// The stored 16-bit map of frame `i` of `input`: from memory when this run computed
-    /// it, else from the folder; `None` when the set has no map for the frame.
+    /// The stored 16-bit map of frame `i` of `input`: from the temporary file when this run
+    /// computed it without a cache, else from the folder; `None` when the set has no map for
+    /// the frame (or no longer has its maps, [`MapSet::release`]).
     pub fn stored(&self, input: &Input, i: usize) -> Result<Option<Gray16Image>> {
-        if let Some(m) = &self.memory {
-            return Ok(m.get(i).cloned().flatten());
+        if let Some(m) = &self.spilled {
+            return m.get(i);
         }
         match &self.folder {
             Some(f) => f.read_map(input, i),
             None => Ok(None),
         }
+    }
+
+    /// Drops this handle on the maps of a run without a cache (their temporary file is
+    /// removed when no other handle holds it); the record stays. An offline run releases the
+    /// maps of each weighted pass once the next one has its own.
+    pub fn release(&mut self) {
+        self.spilled = None;
+    }
+
+    /// Bytes the maps of this set hold in memory (not on disk): O(1) per frame.
+    pub fn bytes_in_memory(&self) -> usize {
+        self.spilled
+            .as_ref()
+            .map_or(0, SpilledMaps::bytes_in_memory)
     }
 
     /// The static weights of frame `i` (w = stored/1000), `None` when the set has none.
@@ -323,46 +337,48 @@ impl MapSet {
     }
 }
 
-/// Collects the maps of a computation frame by frame (from any thread): into memory, and
-/// into a folder when one is given (the cache as a side effect, written as they come).
+/// Collects the maps of a computation frame by frame (from any thread): into a folder when
+/// one is given (the cache, written as they come), else into a temporary file.
 pub(crate) struct MapSink<'a> {
     input: &'a Input,
     folder: Option<&'a MapFolder>,
-    maps: std::sync::Mutex<Vec<Option<Gray16Image>>>,
+    spill: Option<SpilledMaps>,
 }
 
 impl<'a> MapSink<'a> {
-    /// A sink for the frames of `input`, writing into `folder` when given.
-    pub(crate) fn new(input: &'a Input, folder: Option<&'a MapFolder>) -> Self {
-        Self {
+    /// A sink for the frames of `input`, writing into `folder` when given, else into a new
+    /// temporary file.
+    pub(crate) fn new(input: &'a Input, folder: Option<&'a MapFolder>) -> Result<Self> {
+        let spill = match folder {
+            Some(_) => None,
+            None => {
+                let s = &input.camera.settings;
+                Some(SpilledMaps::new(input.len(), s.width, s.height)?)
+            }
+        };
+        Ok(Self {
             input,
             folder,
-            maps: std::sync::Mutex::new(vec![None; input.len()]),
-        }
+            spill,
+        })
     }
 
-    /// Keeps the map of frame `i` (and writes it to the folder).
+    /// Keeps the map of frame `i`: writes it to the folder or the temporary file.
     pub(crate) fn put(&self, i: usize, p: &MotionProbability) -> Result<()> {
         if let Some(f) = self.folder {
-            f.write_map(self.input, i, p)?;
+            return f.write_map(self.input, i, p);
         }
         let stored = stored_map(p, i)?;
-        let mut maps = self
-            .maps
-            .lock()
-            .map_err(|_| Error::Input("motion maps: a worker thread panicked".into()))?;
-        match maps.get_mut(i) {
-            Some(slot) => *slot = Some(stored),
-            None => return Err(Error::Input(format!("motion maps: no frame {i}"))),
+        match &self.spill {
+            Some(s) => s.put(i, &stored),
+            None => Err(Error::Input(format!(
+                "motion maps: nowhere to keep frame {i}"
+            ))),
         }
-        Ok(())
     }
 
-    /// The maps kept.
-    pub(crate) fn finish(self) -> MemoryMaps {
-        self.maps
-            .into_inner()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .into()
+    /// The temporary file of the maps (`None` when they went to a folder).
+    pub(crate) fn finish(self) -> Option<SpilledMaps> {
+        self.spill
     }
 }

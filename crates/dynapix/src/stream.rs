@@ -240,6 +240,7 @@ impl RunRecord {
             prob: None,
             passes: None,
             nothing_tracked: None,
+            invalid_depth: None,
             runs: None,
             seed: None,
             earlier_passes: None,

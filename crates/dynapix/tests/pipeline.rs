@@ -330,6 +330,120 @@ fn fast_corners_are_kept_for_later_passes_only_during_a_run() {
 }
 
 #[test]
+fn fast_corners_are_kept_only_within_the_decoded_budget() {
+    let mut config = Config::default();
+    config.sequence.decoded_cache_mib = 0;
+    let input = open(sequence(), &config);
+    let gray = dynapix_slam::orb::rgb_to_gray_orbslam(&input.load_rgbd(2).unwrap().0);
+    let mut corners = None;
+    dynapix_slam::orb::OrbExtractor::default().extract_cached(&gray, None, &mut corners);
+    input.keep_decoded_frames(true);
+    input.keep_fast_corners(2, corners.unwrap());
+    assert!(input.fast_corners(2).is_none());
+    assert_eq!(input.decoded_peak_bytes(), 0);
+}
+
+/// An offline DynaPix run without a cache and with no decoded-frame budget keeps no frame's
+/// map, decoded image or corners in memory: every map set holds O(1) bytes per frame (its
+/// maps are in a temporary file, read back when a pass reaches the frame), the maps of the
+/// passes before the last are released, and the same trajectory comes out as with the
+/// default budget.
+#[test]
+fn an_offline_run_keeps_no_frame_data_in_memory() {
+    let mut config = Config::default();
+    config.sequence.decoded_cache_mib = 0;
+    let input = open(sequence(), &config);
+    let options = RunOptions {
+        cache_dir: None,
+        ..Default::default()
+    };
+    let runner = OfflineRunner::new(&config, &input, options).unwrap();
+    let out = runner.run(&NoProgress).unwrap();
+    let map_bytes = 320 * 240 * 2;
+    let rigidity = runner.rigidity_maps(&NoProgress).unwrap().unwrap();
+    let last = out.maps.last().unwrap();
+    for (k, m) in out.maps.iter().chain([&rigidity]).enumerate() {
+        // Far below one frame's map for the whole sequence.
+        assert!(
+            m.bytes_in_memory() < map_bytes / 16,
+            "map set {k}: {} bytes in memory",
+            m.bytes_in_memory()
+        );
+        assert!(m.dir().is_none());
+    }
+    assert!(out.maps.len() >= 2);
+    assert!(
+        out.maps[..out.maps.len() - 1]
+            .iter()
+            .all(|m| m.spilled.is_none())
+    );
+    for m in [last, &rigidity] {
+        let spill = m.spilled.as_ref().unwrap();
+        assert_eq!(spill.frames(), FRAMES);
+        assert_eq!(spill.bytes_on_disk(), (FRAMES * map_bytes) as u64);
+        assert_eq!(
+            m.stored(&input, FRAMES - 1).unwrap().unwrap().dimensions(),
+            (320, 240)
+        );
+    }
+    // Neither decoded frames nor FAST corners were kept at any time (by the run's own
+    // input, whose decoded-frame cache is the run's).
+    assert_eq!(runner.input().decoded_peak_bytes(), 0);
+    // The same trajectory with decoded frames and corners kept.
+    let full = Config::default();
+    let kept = open(sequence(), &full);
+    let options = RunOptions {
+        cache_dir: None,
+        ..Default::default()
+    };
+    let runner = OfflineRunner::new(&full, &kept, options).unwrap();
+    let again = runner.run(&NoProgress).unwrap();
+    assert!(runner.input().decoded_peak_bytes() > FRAMES * 320 * 240 * 3);
+    assert_eq!(
+        out.final_pass().unwrap().trajectory,
+        again.final_pass().unwrap().trajectory
+    );
+}
+
+/// The geometric cue read over a window of depths (what the offline maps do) gives every
+/// frame the map it gets with every depth read, and holds a window, not the sequence.
+#[test]
+fn the_geometric_cue_over_a_window_equals_the_cue_over_the_sequence() {
+    let seq = sequence();
+    let config = Config::default();
+    let input = open(seq, &config);
+    let gt = input.sequence.groundtruth.clone().unwrap();
+    let poses = FramePoses::from_trajectory(
+        &gt,
+        &input.timestamps(),
+        0.05,
+        PoseOrigin::GroundTruth {
+            path: seq.join("groundtruth.txt"),
+        },
+    )
+    .unwrap();
+    let mut params = config.motion.static_depth.clone();
+    params.window_s = 0.5;
+    let all = dynapix::stages::GeometricInput::load(&input, &poses, &params).unwrap();
+    assert_eq!(all.frames_held(), FRAMES);
+    let win = dynapix::stages::GeometricInput::windowed(&input, &poses, &params).unwrap();
+    assert_eq!(win.frames_held(), 0);
+    let frames: Vec<usize> = (0..FRAMES).collect();
+    let mut most = 0;
+    for part in frames.chunks(16) {
+        win.prepare(&input, part).unwrap();
+        most = most.max(win.frames_held());
+        for &i in part.iter().step_by(5) {
+            assert_eq!(win.frame(i).unwrap(), all.frame(i).unwrap(), "frame {i}");
+        }
+    }
+    // 16 frames and their views within ±0.5 s (30 Hz).
+    assert!(most <= 16 + 2 * 16, "{most} depths held at once");
+    // A frame outside the window is refused, not computed from missing depths.
+    assert!(win.frame(0).is_err());
+}
+
+#[test]
 fn weighted_offline_run_beats_orbslam2() {
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");
@@ -459,10 +573,12 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
         none.first_pass.as_ref().unwrap().trajectory,
         warm.first_pass.as_ref().unwrap().trajectory
     );
-    // The maps in memory are the cached files' values.
-    let m = &none.maps[0];
-    let cached = &warm.maps[0];
-    assert!(cached.memory.is_none() && m.memory.is_some());
+    // The maps in the temporary file are the cached files' values; the earlier passes'
+    // were released.
+    let m = none.maps.last().unwrap();
+    let cached = warm.maps.last().unwrap();
+    assert!(cached.spilled.is_none() && m.spilled.is_some());
+    assert!(none.maps[0].spilled.is_none());
     for i in [0, 13, 29] {
         assert_eq!(
             m.stored(&input, i).unwrap().unwrap(),

@@ -319,6 +319,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
     match execute_into(&spec, &runner, staged.path(), &mut record, bars) {
         Ok(outcome) => {
             record.mark_complete();
+            record.invalid_depth = Some(spec.input.sequence.invalid_depth());
             record.write(staged.path().join("run.json"))?;
             staged.commit()?;
             Ok(outcome)
@@ -340,6 +341,7 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
             }
             let (why, frame) = stop_reason(&e);
             record.mark_incomplete(why, frame);
+            record.invalid_depth = Some(spec.input.sequence.invalid_depth());
             record.write(staged.path().join("run.json"))?;
             let out = staged.commit()?;
             eprintln!(
@@ -471,6 +473,7 @@ pub fn execute_online(
     } else {
         record.mark_complete();
     }
+    record.invalid_depth = Some(input.sequence.invalid_depth());
     record.write(staged.path().join("run.json"))?;
     let written = staged.commit()?;
     if result.is_err() {

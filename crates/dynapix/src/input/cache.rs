@@ -19,9 +19,11 @@ pub(crate) struct DecodedFrames {
     enabled: Arc<std::sync::atomic::AtomicBool>,
     /// Bytes used and the frames kept, by index.
     kept: Arc<Mutex<(usize, HashMap<usize, DecodedFrame>)>>,
-    /// The FAST corners of the frames' grey images, by index (kept while `enabled`; a few
-    /// tens of kilobytes per frame, outside the budget).
+    /// The FAST corners of the frames' grey images, by index (kept while `enabled`, a few
+    /// tens of kilobytes per frame counted in the budget).
     corners: Arc<Mutex<HashMap<usize, Arc<FastCorners>>>>,
+    /// The most bytes kept at once since the cache was made.
+    peak: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl std::fmt::Debug for DecodedFrames {
@@ -43,6 +45,7 @@ impl DecodedFrames {
             enabled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
             kept: Arc::new(Mutex::new((0, HashMap::new()))),
             corners: Arc::new(Mutex::new(HashMap::new())),
+            peak: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
         }
     }
 
@@ -53,7 +56,24 @@ impl DecodedFrames {
             enabled: Arc::new(std::sync::atomic::AtomicBool::new(false)),
             kept: Arc::new(Mutex::new((0, HashMap::new()))),
             corners: Arc::new(Mutex::new(HashMap::new())),
+            peak: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
         }
+    }
+
+    /// Takes `bytes` of the budget when they fit (the lock on the kept frames held).
+    fn charge(&self, used: &mut usize, bytes: usize) -> bool {
+        if *used + bytes > self.budget {
+            return false;
+        }
+        *used += bytes;
+        self.peak
+            .fetch_max(*used, std::sync::atomic::Ordering::Relaxed);
+        true
+    }
+
+    /// The most bytes of frames and corners kept at once since the cache was made.
+    pub(crate) fn peak_bytes(&self) -> usize {
+        self.peak.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Frame `i`, when kept.
@@ -68,10 +88,9 @@ impl DecodedFrames {
         }
         let bytes = rgb.as_raw().len() + std::mem::size_of_val(depth.as_raw().as_slice());
         let Ok(mut k) = self.kept.lock() else { return };
-        if k.1.contains_key(&i) || k.0 + bytes > self.budget {
+        if k.1.contains_key(&i) || !self.charge(&mut k.0, bytes) {
             return;
         }
-        k.0 += bytes;
         k.1.insert(i, Arc::new((rgb.clone(), depth.clone())));
     }
 
@@ -91,14 +110,21 @@ impl DecodedFrames {
         self.corners.lock().ok()?.get(&i).cloned()
     }
 
-    /// Keeps the FAST corners of frame `i` while frames are kept.
+    /// Keeps the FAST corners of frame `i` while frames are kept and they fit the budget
+    /// (shared with the frames).
     pub(crate) fn keep_corners(&self, i: usize, corners: Arc<FastCorners>) {
         if !self.enabled.load(std::sync::atomic::Ordering::Relaxed) {
             return;
         }
-        if let Ok(mut c) = self.corners.lock() {
-            c.entry(i).or_insert(corners);
+        // Three f32 (x, y, response) per corner.
+        let bytes = corners.len() * std::mem::size_of::<[f32; 3]>();
+        let (Ok(mut k), Ok(mut c)) = (self.kept.lock(), self.corners.lock()) else {
+            return;
+        };
+        if c.contains_key(&i) || !self.charge(&mut k.0, bytes) {
+            return;
         }
+        c.insert(i, corners);
     }
 
     /// Number of frames kept.

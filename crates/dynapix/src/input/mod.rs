@@ -240,10 +240,18 @@ impl Input {
     }
 
     /// Keeps the FAST corners of frame `i`'s grey image for the later passes of a run, while
-    /// decoded frames are kept ([`Input::keep_decoded_frames`]): the corners do not depend on
-    /// a pass's weights, so every pass after the first only applies its own mask to them.
+    /// decoded frames are kept ([`Input::keep_decoded_frames`]) and they fit the budget
+    /// [`SequenceConfig::decoded_cache_mib`] (shared with the frames): the corners do not
+    /// depend on a pass's weights, so every pass after the first only applies its own mask to
+    /// them (a frame whose corners were not kept detects them again, the same ones).
     pub fn keep_fast_corners(&self, i: usize, corners: Arc<FastCorners>) {
         self.decoded.keep_corners(i, corners);
+    }
+
+    /// The most bytes of decoded frames and FAST corners kept at once since this input's
+    /// cache was made (at most [`SequenceConfig::decoded_cache_mib`]).
+    pub fn decoded_peak_bytes(&self) -> usize {
+        self.decoded.peak_bytes()
     }
 
     /// Number of decoded frames kept in memory between passes
