@@ -5,8 +5,8 @@
 //! Every function here is a pure function of time, so the same rigid part at two times gives
 //! the exact motion between them (ground-truth flow and the per-pixel "moving" mask).
 
-use crate::body::{Pose, body_frame, dims, gait, person_parts};
 use crate::body::PersonLook;
+use crate::body::{Pose, body_frame, dims, gait, person_parts};
 use crate::shape::{Primitive, Shape};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
