@@ -436,7 +436,7 @@ mod tests {
                 .map(|k| frac(s.objs.iter().map(|o| o[k].px > 20)))
                 .collect();
             eprintln!(
-                "crowd seed {seed}: {people} people, moving share median {:.3}, max {:.3},                  > 50 % in {:.0} % of {} frames; median distance while visible {near:.2?} m,                  visible in {visible:.2?} of the frames",
+                "crowd seed {seed}: {people} people, moving share median {:.3}, max {:.3}, > 50 % in {:.0} % of {} frames; median distance while visible {near:.2?} m, visible in {visible:.2?} of the frames",
                 median(s.moving_share.clone()),
                 s.moving_share.iter().copied().fold(0.0, f64::max),
                 100.0 * over_half,
@@ -543,7 +543,7 @@ mod tests {
                 .fold(0.0, f64::max);
             let person_gone = frac((rest.0..rest.0 + rest.1).map(|i| s.objs[i][0].px < 30));
             eprintln!(
-                "placing_box seed {seed}: {} frames, box {:.2} m; runs (start s, seconds,                  state): {:?}; person up to {away:.2} m from the resting box, out of view                  {:.0} % of the rest",
+                "placing_box seed {seed}: {} frames, box {:.2} m; runs (start s, seconds, state): {:?}; person up to {away:.2} m from the resting box, out of view {:.0} % of the rest",
                 s.cam.len(),
                 box_size(&s.movers[1]),
                 r.iter()
@@ -601,7 +601,7 @@ mod tests {
             let (v0, v1) = range(&speeds);
             let walker = frac(s.objs.iter().map(|o| o[1].px > 20));
             eprintln!(
-                "balloon seed {seed}: {} frames with the ball in flight in view, {crossings}                  crossings of the view, distance {d0:.2}–{d1:.2} m, speed {v0:.2}–{v1:.2} m/s                  (median {:.2}); walker visible in {:.0} % of the frames",
+                "balloon seed {seed}: {} frames with the ball in flight in view, {crossings} crossings of the view, distance {d0:.2}–{d1:.2} m, speed {v0:.2}–{v1:.2} m/s (median {:.2}); walker visible in {:.0} % of the frames",
                 dists.len(),
                 median(speeds.clone()),
                 100.0 * walker,
