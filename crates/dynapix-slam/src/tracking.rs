@@ -10,6 +10,7 @@ mod relocalization;
 use std::collections::{BTreeMap, HashSet};
 
 use dynapix_geometry::Se3;
+use nalgebra::Vector3;
 use dynapix_optim::{Observation, PoseOnlyProblem};
 
 use crate::camera::{RgbdCamera, stereo_camera};
@@ -75,6 +76,9 @@ pub struct Tracker {
     coast: Option<(Se3, Se3, u64)>,
     /// The current frame is tracked from a prediction (wider local-map search).
     predicted: bool,
+    /// World positions of the map points removed as moving while tracking the last frame,
+    /// when recorded ([`Tracker::record_removed_points`]; `None`: not recorded, no cost).
+    removed: Option<Vec<Vector3<f64>>>,
 }
 
 impl Tracker {
@@ -96,7 +100,25 @@ impl Tracker {
             last_known_pose: None,
             coast: None,
             predicted: false,
+            removed: None,
         }
+    }
+
+    /// Records (or stops recording) the map points removed as moving at each frame
+    /// ([`Tracker::removed_points`]).
+    pub fn record_removed_points(&mut self, on: bool) {
+        self.removed = on.then(Vec::new);
+    }
+
+    /// Whether removed points are recorded.
+    pub fn removed_points_recorded(&self) -> bool {
+        self.removed.is_some()
+    }
+
+    /// World positions of the map points removed as moving (γ_del) while tracking the last
+    /// frame; empty unless recorded.
+    pub fn removed_points(&self) -> &[Vector3<f64>] {
+        self.removed.as_deref().unwrap_or(&[])
     }
 
     /// Current state.
@@ -108,8 +130,10 @@ impl Tracker {
     /// re-initialised map continues in the same world frame.
     pub fn reset(&mut self) {
         let keep = self.last_known_pose;
+        let removed = self.removed.take();
         *self = Self::new(self.cam.clone(), self.params.clone());
         self.last_known_pose = keep;
+        self.removed = removed;
     }
 
     fn max_frames(&self) -> u64 {
@@ -125,6 +149,9 @@ impl Tracker {
         vocab: Option<&Vocabulary>,
     ) -> TrackOutcome {
         let mut out = self.empty_outcome();
+        if let Some(r) = self.removed.as_mut() {
+            r.clear();
+        }
         if self.state == TrackingState::NotInitialized {
             tracing::debug!(
                 frame = frame.id,
@@ -635,7 +662,7 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(map, frame);
         self.optimize_pose(map, frame);
-        let upd = crate::weighting::update_matched_points(map, frame);
+        let upd = crate::weighting::update_matched_points_logged(map, frame, self.removed.as_mut());
         if upd.deleted > 0 {
             tracing::debug!(
                 frame = frame.id,

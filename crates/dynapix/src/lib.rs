@@ -68,6 +68,7 @@ pub mod hash;
 pub mod input;
 pub mod maps;
 pub mod method;
+pub mod observe;
 pub mod offline;
 pub mod online;
 pub mod pass;
@@ -91,9 +92,12 @@ pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use maps::{CacheCheck, FrameMaps, MapFolder, MapJob, MapSet};
 pub use method::{Method, Mode, Terms};
+pub use observe::{
+    FrameView, KeypointUse, KeypointView, MapPointView, PassInfo, RunObserver, StageTimes,
+};
 pub use offline::{OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
 pub use poses::{FramePoses, PoseOrigin};
 pub use progress::{NoProgress, Progress, ProgressEvent};
 pub use slam::{PassOutput, PassStats, SlamSession};
-pub use stream::{OnlineRun, run_online};
+pub use stream::{OnlineRun, run_online, run_online_observed};
