@@ -238,7 +238,7 @@ impl RerunObserver {
                 Ok(()) => self.log(
                     "world/camera/image",
                     &rerun::EncodedImage::from_file_contents(jpeg)
-                        .with_media_type(rerun::MediaType::JPEG),
+                        .with_media_type(rerun::MediaType::jpeg()),
                 ),
                 Err(e) => tracing::warn!("rerun: cannot encode frame {}: {e}", f.index),
             }

@@ -53,7 +53,7 @@ pub fn read_rrd(path: &Path) -> Result<Contents> {
                 }
             }
             LogMsg::BlueprintActivationCommand(_) => out.layouts += 1,
-            LogMsg::SetStoreInfo(_) => {}
+            _ => {}
         }
     }
     Ok(out)

@@ -340,9 +340,9 @@ impl<E: FeatureExtractor> System<E> {
         self.map_pending();
         self.freeze_records();
         self.map = map;
-        let recording = self.tracker.removed_points_recorded();
+        let removed = self.tracker.removed.take();
         self.tracker = Tracker::new(self.cam.clone(), self.tracker.params.clone());
-        self.tracker.record_removed_points(recording);
+        self.tracker.removed = removed;
         self.mapper.reset();
         self.localization = true;
     }

@@ -78,7 +78,7 @@ pub struct Tracker {
     predicted: bool,
     /// World positions of the map points removed as moving while tracking the last frame,
     /// when recorded ([`Tracker::record_removed_points`]; `None`: not recorded, no cost).
-    removed: Option<Vec<Vector3<f64>>>,
+    pub(crate) removed: Option<Vec<Vector3<f64>>>,
 }
 
 impl Tracker {
@@ -108,11 +108,6 @@ impl Tracker {
     /// ([`Tracker::removed_points`]).
     pub fn record_removed_points(&mut self, on: bool) {
         self.removed = on.then(Vec::new);
-    }
-
-    /// Whether removed points are recorded.
-    pub fn removed_points_recorded(&self) -> bool {
-        self.removed.is_some()
     }
 
     /// World positions of the map points removed as moving (γ_del) while tracking the last

@@ -14,6 +14,7 @@ use dynapix_geometry::{PinholeCamera, Se3};
 use dynapix_io::{DepthImage, FrameStatus, StaticWeights, Trajectory};
 use dynapix_slam::System;
 use dynapix_slam::orb::OrbExtractor;
+use dynapix_slam::tracking::TrackingState;
 use image::RgbImage;
 use nalgebra::Vector3;
 
@@ -155,7 +156,12 @@ impl<'a> FrameView<'a> {
         times: StageTimes,
         system: &'a System<OrbExtractor>,
     ) -> Self {
-        let status = crate::slam::frame_status(result.state);
+        // As `slam::frame_status` (not called: that module calls this one).
+        let status = match result.state {
+            TrackingState::Ok => FrameStatus::Tracked,
+            TrackingState::Lost => FrameStatus::Lost,
+            TrackingState::NotInitialized => FrameStatus::NotInitialized,
+        };
         let pose_wc = result
             .pose_cw
             .filter(|_| status == FrameStatus::Tracked)
