@@ -55,7 +55,11 @@ fn run_and_slam_write_recordings_that_decode_back() {
         let c = dynapix_rerun::read::read_rrd(&rrd).unwrap();
         let passes = c.timelines.len();
         assert!(passes >= 1, "{cmd}: {c:?}");
-        assert_eq!(c.rows("world/camera/image/keypoints"), passes * FRAMES, "{cmd}");
+        assert_eq!(
+            c.rows("world/camera/image/keypoints"),
+            passes * FRAMES,
+            "{cmd}"
+        );
         let tracked = std::fs::read_to_string(out.join("trajectory.txt"))
             .unwrap()
             .lines()
@@ -83,7 +87,11 @@ fn without_the_viz_feature_the_flags_say_how_to_get_them() {
         assert!(!o.status.success(), "{cmd} {flag} ran without the feature");
         let e = stderr(&o);
         assert!(e.contains(flag) && e.contains("--features viz"), "{e}");
-        assert!(!out.exists(), "{cmd} {flag}: wrote {} before refusing", out.display());
+        assert!(
+            !out.exists(),
+            "{cmd} {flag}: wrote {} before refusing",
+            out.display()
+        );
         assert!(!tmp.path().join("x.rrd").exists());
     }
 }

@@ -371,11 +371,8 @@ impl RunObserver for RerunObserver {
         );
         let removed = f.removed_points();
         if !removed.is_empty() {
-            st.removed.extend(
-                removed
-                    .iter()
-                    .map(|p| [p.x as f32, p.y as f32, p.z as f32]),
-            );
+            st.removed
+                .extend(removed.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]));
             self.log(
                 "world/map/removed",
                 &rerun::Points3D::new(st.removed.iter().copied())
@@ -393,7 +390,8 @@ impl RunObserver for RerunObserver {
         self.scalar("plots/map_points", f.num_map_points() as f64);
         if let Some(w) = f.weights {
             let img = w.as_image().as_raw();
-            let mean_p = img.iter().map(|&w| 1.0 - f64::from(w)).sum::<f64>() / img.len().max(1) as f64;
+            let mean_p =
+                img.iter().map(|&w| 1.0 - f64::from(w)).sum::<f64>() / img.len().max(1) as f64;
             self.scalar("plots/mean_p", mean_p);
         }
         let t = f.times;

@@ -10,8 +10,8 @@ mod relocalization;
 use std::collections::{BTreeMap, HashSet};
 
 use dynapix_geometry::Se3;
-use nalgebra::Vector3;
 use dynapix_optim::{Observation, PoseOnlyProblem};
+use nalgebra::Vector3;
 
 use crate::camera::{RgbdCamera, stereo_camera};
 use crate::frame::Frame;

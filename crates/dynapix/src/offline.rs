@@ -37,10 +37,12 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps, file_fingerprint};
 use crate::method::{Method, Terms};
+use crate::observe::RunObserver;
 use crate::poses::{FramePoses, PoseOrigin, as_written};
 use crate::progress::Progress;
-use crate::observe::RunObserver;
-use crate::slam::{PassOutput, PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed};
+use crate::slam::{
+    PassOutput, PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed,
+};
 
 /// Version of the SLAM passes, part of the first-pass cache key: bump it when a change of
 /// the SLAM system changes trajectories without changing a parameter.
@@ -264,7 +266,10 @@ pub struct OfflineRunner<'a> {
     /// The first pass, once run or found (the same for every run of the runner).
     first: std::sync::OnceLock<FirstPassResult>,
     /// Who watches the passes ([`OfflineRunner::with_observer`]), and the passes run so far.
-    observer: Option<(std::sync::Arc<dyn RunObserver>, std::sync::atomic::AtomicUsize)>,
+    observer: Option<(
+        std::sync::Arc<dyn RunObserver>,
+        std::sync::atomic::AtomicUsize,
+    )>,
 }
 
 impl<'a> OfflineRunner<'a> {

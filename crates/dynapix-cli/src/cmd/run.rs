@@ -652,7 +652,9 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     check_out(&args.out, &keep)?;
     let input = args.seq.open(&config)?;
     let method = config.method;
-    let viz = args.viz.open(&format!("{method} {}", args.seq.seq_dir.display()))?;
+    let viz = args
+        .viz
+        .open(&format!("{method} {}", args.seq.seq_dir.display()))?;
     let observer = viz.as_ref().map(super::viz::Viz::observer);
     let o = if args.online {
         if args.runs != 1 {

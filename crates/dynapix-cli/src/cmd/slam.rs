@@ -220,7 +220,9 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         Some(path) => enter_localization(&mut session, path, &input)?,
         None => String::new(),
     };
-    let viz = args.viz.open(&format!("slam {}", args.seq.seq_dir.display()))?;
+    let viz = args
+        .viz
+        .open(&format!("slam {}", args.seq.seq_dir.display()))?;
     let staged = OutputFolder::begin(&args.out, RESULT_MARKERS)?;
     let observer = viz.as_ref().map(super::viz::Viz::observer);
     let watch = observer.as_deref().map(|o| Watch {

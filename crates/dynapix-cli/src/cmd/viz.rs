@@ -63,7 +63,11 @@ fn open(args: &VizArgs, name: &str) -> anyhow::Result<Viz> {
 
 #[cfg(not(feature = "viz"))]
 fn open(args: &VizArgs, _name: &str) -> anyhow::Result<Viz> {
-    let flag = if args.rerun { "--rerun" } else { "--rerun-save" };
+    let flag = if args.rerun {
+        "--rerun"
+    } else {
+        "--rerun-save"
+    };
     anyhow::bail!(
         "{flag} needs the Rerun viewer support, which this build does not have: build with \
          `cargo build --release -p dynapix-cli --features viz`"

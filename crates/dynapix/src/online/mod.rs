@@ -58,8 +58,8 @@ use image::{GrayImage, RgbImage};
 use crate::combine::FrameCues;
 use crate::config::{Config, Cues};
 use crate::error::{Error, Result};
-use crate::observe::{FrameView, RunObserver, StageTimes};
 use crate::input::Camera;
+use crate::observe::{FrameView, RunObserver, StageTimes};
 use crate::slam::{frame_status, load_vocabulary};
 
 mod steps;
@@ -492,7 +492,9 @@ impl OnlineDynaPix {
                 extract_ms: 0.0,
                 track_ms: slam_ms,
                 mapping_ms: mapped.as_ref().map_or(0.0, |m| m.mapping_seconds * 1e3),
-                loop_ms: mapped.as_ref().map_or(0.0, |m| m.loop_closing_seconds * 1e3),
+                loop_ms: mapped
+                    .as_ref()
+                    .map_or(0.0, |m| m.loop_closing_seconds * 1e3),
             };
             let rgb = observer.wants_images().then_some(&images.rgb);
             let mut view = FrameView::new(
