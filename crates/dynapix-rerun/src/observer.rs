@@ -321,7 +321,9 @@ impl RunObserver for RerunObserver {
             .with_principal_point([c.cx as f32, c.cy as f32])
             .with_image_plane_distance(0.25),
         );
-        self.rec.set_time_sequence(timeline.as_str(), 0);
+        if let Ok(name) = rerun::TimelineName::try_new(&timeline) {
+            self.rec.set_time_sequence(name, 0);
+        }
         self.event(
             format!(
                 "pass {} begins: {} ({} frames{}{})",
@@ -341,8 +343,9 @@ impl RunObserver for RerunObserver {
 
     fn frame(&self, f: &FrameView<'_>) {
         let mut st = self.state();
-        self.rec
-            .set_time_sequence(st.timeline.as_str(), f.index as i64);
+        if let Ok(name) = rerun::TimelineName::try_new(&st.timeline) {
+            self.rec.set_time_sequence(name, f.index as i64);
+        }
         st.frames += 1;
         if let Some(p) = f.pose_wc {
             st.estimate.push((f.t, p));
