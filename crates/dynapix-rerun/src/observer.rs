@@ -321,6 +321,8 @@ impl RunObserver for RerunObserver {
             .with_principal_point([c.cx as f32, c.cy as f32])
             .with_image_plane_distance(0.25),
         );
+        // The previous pass's time must not stick to this pass's rows.
+        self.rec.reset_time();
         if let Ok(name) = rerun::TimelineName::try_new(&timeline) {
             self.rec.set_time_sequence(name, 0);
         }

@@ -82,7 +82,13 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
     let n = passes.len();
     assert_eq!(n, 1 + config.passes.weighted);
     let c = read_rrd(&rrd).unwrap();
-    let timelines: Vec<&str> = c.timelines.keys().map(String::as_str).collect();
+    // Rerun adds its own `log_time`.
+    let timelines: Vec<&str> = c
+        .timelines
+        .keys()
+        .map(String::as_str)
+        .filter(|t| *t != "log_time")
+        .collect();
     let expected: Vec<String> = (1..=n).map(|k| format!("pass{k}")).collect();
     assert_eq!(timelines, expected, "{c:?}");
     assert_eq!(c.layouts, n, "one layout per pass");
@@ -144,7 +150,10 @@ fn an_online_run_decodes_back_and_keeps_its_results() {
     assert_eq!(poses(&plain.refined), poses(&watched.refined));
 
     let c = read_rrd(&rrd).unwrap();
-    assert_eq!(c.timelines.keys().collect::<Vec<_>>(), ["pass1"]);
+    assert_eq!(
+        c.timelines.keys().collect::<Vec<_>>(),
+        ["log_time", "pass1"]
+    );
     assert_eq!(c.rows("world/camera"), watched.tracked());
     assert_eq!(c.rows("world/camera/image/keypoints"), FRAMES);
     assert_eq!(c.rows("world/camera/image/motion"), FRAMES);
