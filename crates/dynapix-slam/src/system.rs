@@ -340,7 +340,9 @@ impl<E: FeatureExtractor> System<E> {
         self.map_pending();
         self.freeze_records();
         self.map = map;
+        let removed = self.tracker.removed.take();
         self.tracker = Tracker::new(self.cam.clone(), self.tracker.params.clone());
+        self.tracker.removed = removed;
         self.mapper.reset();
         self.localization = true;
     }
@@ -376,6 +378,24 @@ impl<E: FeatureExtractor> System<E> {
     /// Tracking state.
     pub fn state(&self) -> TrackingState {
         self.tracker.state()
+    }
+
+    /// The last frame tracking saw (keypoints, weights, map-point matches and outlier flags
+    /// as tracking left them), for a viewer.
+    pub fn last_frame(&self) -> Option<&crate::frame::Frame> {
+        self.tracker.last_frame()
+    }
+
+    /// Records (or stops recording) the map points removed as moving at each frame
+    /// ([`System::removed_points`]); off by default (nothing recorded, no cost).
+    pub fn record_removed_points(&mut self, on: bool) {
+        self.tracker.record_removed_points(on);
+    }
+
+    /// World positions of the map points removed as moving (γ_del) while tracking the last
+    /// frame; empty unless [`System::record_removed_points`] is on.
+    pub fn removed_points(&self) -> &[nalgebra::Vector3<f64>] {
+        self.tracker.removed_points()
     }
 
     /// Checks that the depth, weight and mask maps of `input` have the grey image's size, and

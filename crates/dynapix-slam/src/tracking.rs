@@ -13,6 +13,7 @@ use std::collections::{BTreeMap, HashSet};
 
 use dynapix_geometry::Se3;
 use dynapix_optim::{Observation, PoseOnlyProblem};
+use nalgebra::Vector3;
 
 use crate::camera::{RgbdCamera, stereo_camera};
 use crate::frame::Frame;
@@ -78,6 +79,9 @@ pub struct Tracker {
     coast: Option<(Se3, Se3, u64)>,
     /// The current frame is tracked from a prediction (wider local-map search).
     predicted: bool,
+    /// World positions of the map points removed as moving while tracking the last frame,
+    /// when recorded ([`Tracker::record_removed_points`]; `None`: not recorded, no cost).
+    pub(crate) removed: Option<Vec<Vector3<f64>>>,
 }
 
 impl Tracker {
@@ -99,7 +103,20 @@ impl Tracker {
             last_known_pose: None,
             coast: None,
             predicted: false,
+            removed: None,
         }
+    }
+
+    /// Records (or stops recording) the map points removed as moving at each frame
+    /// ([`Tracker::removed_points`]).
+    pub fn record_removed_points(&mut self, on: bool) {
+        self.removed = on.then(Vec::new);
+    }
+
+    /// World positions of the map points removed as moving (γ_del) while tracking the last
+    /// frame; empty unless recorded.
+    pub fn removed_points(&self) -> &[Vector3<f64>] {
+        self.removed.as_deref().unwrap_or(&[])
     }
 
     /// Current state.
@@ -111,8 +128,10 @@ impl Tracker {
     /// re-initialised map continues in the same world frame.
     pub fn reset(&mut self) {
         let keep = self.last_known_pose;
+        let removed = self.removed.take();
         *self = Self::new(self.cam.clone(), self.params.clone());
         self.last_known_pose = keep;
+        self.removed = removed;
     }
 
     fn max_frames(&self) -> u64 {
@@ -128,6 +147,9 @@ impl Tracker {
         vocab: Option<&Vocabulary>,
     ) -> TrackOutcome {
         let mut out = self.empty_outcome();
+        if let Some(r) = self.removed.as_mut() {
+            r.clear();
+        }
         if self.state == TrackingState::NotInitialized {
             tracing::debug!(
                 frame = frame.id,
@@ -638,7 +660,7 @@ impl Tracker {
             tracing::debug!(frame = frame.id, shift, "predicted pose refused: map moved");
             return false;
         }
-        let upd = crate::weighting::update_matched_points(map, frame);
+        let upd = crate::weighting::update_matched_points_logged(map, frame, self.removed.as_mut());
         if upd.deleted > 0 {
             tracing::debug!(
                 frame = frame.id,

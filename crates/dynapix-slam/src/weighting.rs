@@ -22,7 +22,8 @@ pub mod apply;
 pub mod params;
 
 pub use apply::{
-    UpdateStats, apply_class_mask, may_birth_in_frame, may_birth_in_keyframe, update_matched_points,
+    UpdateStats, apply_class_mask, may_birth_in_frame, may_birth_in_keyframe,
+    update_matched_points, update_matched_points_logged,
 };
 pub use params::{
     BirthSource, DynaPixParams, ProbUpdate, Weighting, ba_params, ba_weight_clamp, may_birth,

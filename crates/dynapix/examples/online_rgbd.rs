@@ -7,6 +7,10 @@
 //! Prints one TUM line (`t tx ty tz qx qy qz qw`, camera-to-world) per tracked frame on
 //! stdout, as soon as the frame's pose is known, and a summary on stderr. The folder is read
 //! with the library's sequence reader (`camera.yaml` or a TUM folder name gives the camera).
+//!
+//! To watch it in the Rerun viewer (`--rerun`, `--rerun-save FILE.rrd`) run the same loop
+//! from the `dynapix-rerun` crate, which compiles `rerun`:
+//! `cargo run --release -p dynapix-rerun --example online_rgbd_rerun -- SEQ_DIR --rerun-save run.rrd`.
 
 use std::process::ExitCode;
 
@@ -58,6 +62,13 @@ fn main() -> ExitCode {
     let mut lookahead = None;
     let mut it = args[1..].iter();
     while let Some(a) = it.next() {
+        if a == "--rerun" || a == "--rerun-save" {
+            eprintln!(
+                "error: {a} needs the Rerun viewer, which this example does not compile: run \
+                 `cargo run --release -p dynapix-rerun --example online_rgbd_rerun -- SEQ_DIR {a} …`"
+            );
+            return ExitCode::FAILURE;
+        }
         match (a.as_str(), it.next()) {
             ("--lookahead", Some(k)) => match k.parse() {
                 Ok(k) => lookahead = Some(k),

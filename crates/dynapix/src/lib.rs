@@ -74,6 +74,7 @@ mod hash;
 mod input;
 mod maps;
 mod method;
+mod observe;
 mod offline;
 mod online;
 mod pass;
@@ -99,6 +100,9 @@ pub use dynapix_slam::weighting::ProbUpdate;
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use method::{Method, Mode, Terms};
+pub use observe::{
+    FrameView, KeypointUse, KeypointView, MapPointView, PassInfo, RunObserver, StageTimes,
+};
 pub use offline::{FirstPassResult, OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
 pub use pass::{FrameTiming, PassOutput, PassStats};
@@ -107,4 +111,4 @@ pub use record::{
     CameraRecord, FileFingerprint, GroundTruthRecord, MapsStatus, MotionRecord, OrbRecord,
     PassRecord, RunRecord, SequenceRecord, WeightingRecord,
 };
-pub use stream::{OnlineRun, online_masks, run_online};
+pub use stream::{OnlineRun, online_masks, run_online, run_online_observed};

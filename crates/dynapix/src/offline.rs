@@ -41,9 +41,12 @@ use crate::input::Input;
 use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
 use crate::method::{Method, Terms};
 use crate::poses::{FramePoses, as_written};
+use crate::observe::RunObserver;
 use crate::progress::Progress;
 use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
-use crate::slam::{PassOutput, PassWeights, SlamSession, load_vocabulary, run_pass};
+use crate::slam::{
+    PassOutput, PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed,
+};
 
 /// Version of the SLAM passes, part of the first-pass cache key: bump it when a change of
 /// the SLAM system changes trajectories without changing a parameter.
@@ -284,6 +287,11 @@ pub struct OfflineRunner<'a> {
     rigidity: std::sync::OnceLock<MapSet>,
     /// The first pass, once run or found (the same for every run of the runner).
     first: std::sync::OnceLock<FirstPassResult>,
+    /// Who watches the passes ([`OfflineRunner::with_observer`]), and the passes run so far.
+    observer: Option<(
+        std::sync::Arc<dyn RunObserver>,
+        std::sync::atomic::AtomicUsize,
+    )>,
 }
 
 impl<'a> OfflineRunner<'a> {
@@ -304,6 +312,7 @@ impl<'a> OfflineRunner<'a> {
             options,
             rigidity: std::sync::OnceLock::new(),
             first: std::sync::OnceLock::new(),
+            observer: None,
         };
         if config.method.needs_masks() {
             let d = r.masks_dir();
@@ -315,6 +324,13 @@ impl<'a> OfflineRunner<'a> {
             }
         }
         Ok(r)
+    }
+
+    /// Shows every SLAM pass of the runner to `observer` (numbered from 1 in the order they
+    /// run); the results are the same as without it.
+    pub fn with_observer(mut self, observer: std::sync::Arc<dyn RunObserver>) -> Self {
+        self.observer = Some((observer, std::sync::atomic::AtomicUsize::new(0)));
+        self
     }
 
     /// The configuration.
@@ -366,13 +382,18 @@ impl<'a> OfflineRunner<'a> {
             },
         };
         let masks = method.needs_masks().then(|| self.masks_dir());
-        run_pass(
+        let watch = self.observer.as_ref().map(|(o, n)| Watch {
+            observer: o.as_ref(),
+            number: n.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+        });
+        run_pass_observed(
             &self.input,
             &mut session,
             weights,
             masks.as_deref(),
             label,
             progress,
+            watch,
         )
     }
 

@@ -22,6 +22,7 @@ use image::{GrayImage, RgbImage};
 use crate::config::VocabularyChoice;
 use crate::error::{BadFrame, Error, Result, StoppedPass};
 use crate::input::{Camera, Input};
+use crate::observe::{FrameView, PassInfo, RunObserver, StageTimes};
 pub use crate::pass::{FrameTiming, PassOutput, PassStats};
 use crate::progress::{Progress, Task};
 use crate::store::MapSet;
@@ -354,6 +355,8 @@ pub enum PassWeights<'a> {
 
 /// A frame's grey image, depth and features, ready for tracking.
 struct Prepared {
+    /// The colour image, kept only for an observer that wants it.
+    rgb: Option<RgbImage>,
     gray: GrayImage,
     depth: DepthImage,
     features: Features,
@@ -376,6 +379,7 @@ fn decode(
     weights: PassWeights<'_>,
     masks: Option<&Path>,
     stage: &mut FeatureStage<OrbExtractor>,
+    keep_rgb: bool,
 ) -> Decoded {
     let t = input.sequence.frames[i].t;
     let (rgb, depth) = match input.load_rgbd(i) {
@@ -426,7 +430,7 @@ fn decode(
         },
     };
     let gray = rgb_to_gray_orbslam(&rgb);
-    drop(rgb);
+    let rgb = keep_rgb.then_some(rgb);
     let features = match &weights {
         Ok(w) => {
             // Every pass detects the same FAST corners on this image: reuse them.
@@ -447,6 +451,7 @@ fn decode(
     Decoded {
         t,
         images: Ok(Prepared {
+            rgb,
             gray,
             depth,
             features,
@@ -475,6 +480,43 @@ pub fn run_pass(
     label: &str,
     progress: &dyn Progress,
 ) -> Result<PassOutput> {
+    run_pass_observed(input, session, weights, masks, label, progress, None)
+}
+
+/// An observer of a pass and the pass's number in the run ([`PassInfo::number`]).
+#[derive(Clone, Copy)]
+pub struct Watch<'a> {
+    /// The observer.
+    pub observer: &'a dyn RunObserver,
+    /// The pass's number in the run, from 1.
+    pub number: usize,
+}
+
+/// [`run_pass`] shown to an observer (`watch`): the pass's start and end and every tracked
+/// frame. Without one it is [`run_pass`]; with one the results are the same.
+pub fn run_pass_observed(
+    input: &Input,
+    session: &mut SlamSession,
+    weights: PassWeights<'_>,
+    masks: Option<&Path>,
+    label: &str,
+    progress: &dyn Progress,
+    watch: Option<Watch<'_>>,
+) -> Result<PassOutput> {
+    let pinhole = input.camera.pinhole();
+    let info = watch.map(|w| PassInfo {
+        number: w.number,
+        label,
+        frames: input.len(),
+        camera: &pinhole,
+        ground_truth: input.sequence.groundtruth.as_ref(),
+        weighted: matches!(weights, PassWeights::Maps { .. }),
+    });
+    let keep_rgb = watch.is_some_and(|w| w.observer.wants_images());
+    if let (Some(w), Some(info)) = (watch, &info) {
+        session.system_mut().record_removed_points(true);
+        w.observer.pass_begins(info);
+    }
     let n = input.len();
     let task = Task::begin(progress, label, n);
     let stage = session.feature_stage();
@@ -486,9 +528,9 @@ pub fn run_pass(
         PASS_READERS,
         || {
             let mut stage = stage.clone();
-            move |i| decode(input, i, weights, masks, &mut stage)
+            move |i| decode(input, i, weights, masks, &mut stage, keep_rgb)
         },
-        |_, d| -> Result<()> {
+        |i, d| -> Result<()> {
             let prepared = match d.images {
                 Ok(images) => images,
                 Err(Error::Frame(bad)) if input.skip_bad_frames => {
@@ -503,7 +545,7 @@ pub fn run_pass(
             if d.missing {
                 session.note_missing_weights();
             }
-            session.track_features(
+            let res = session.track_features(
                 d.t,
                 &prepared.gray,
                 prepared.features,
@@ -511,12 +553,31 @@ pub fn run_pass(
                 w.as_ref(),
                 m.as_ref(),
             )?;
+            if let Some(watch) = watch {
+                let times = StageTimes {
+                    motion_ms: None,
+                    extract_ms: res.times.extract * 1e3,
+                    track_ms: res.times.track * 1e3,
+                    mapping_ms: res.times.mapping * 1e3,
+                    loop_ms: res.times.loop_closing * 1e3,
+                };
+                watch.observer.frame(&FrameView::new(
+                    i,
+                    d.t,
+                    &res,
+                    prepared.rgb.as_ref(),
+                    &prepared.depth,
+                    w.as_ref(),
+                    times,
+                    session.system(),
+                ));
+            }
             task.step(&session.summary());
             Ok(())
         },
     );
     drop(task);
-    match fed {
+    let out = match fed {
         Ok(()) => {
             session.finish();
             Ok(session.output())
@@ -526,5 +587,14 @@ pub fn run_pass(
             error,
             partial: session.output(),
         }))),
+    };
+    if let (Some(w), Some(info)) = (watch, &info) {
+        session.system_mut().record_removed_points(false);
+        match &out {
+            Ok(o) => w.observer.pass_ends(info, o),
+            Err(Error::Stopped(s)) => w.observer.pass_ends(info, &s.partial),
+            Err(_) => {}
+        }
     }
+    out
 }

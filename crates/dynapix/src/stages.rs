@@ -7,4 +7,6 @@ pub use crate::cues::{GeometricInput, RigidityJob};
 pub use crate::maps::{CacheCheck, MapFolder, MapJob, MapSet, compute_into};
 pub use crate::offline::folder_writable;
 pub use crate::poses::{FramePoses, PoseOrigin, from_source as poses_from_source};
-pub use crate::slam::{MapLoad, MapSave, PassWeights, SlamSession, load_vocabulary, run_pass};
+pub use crate::slam::{
+    MapLoad, MapSave, PassWeights, SlamSession, Watch, load_vocabulary, run_pass, run_pass_observed,
+};

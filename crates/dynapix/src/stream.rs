@@ -5,6 +5,7 @@
 //! use it.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
@@ -12,6 +13,7 @@ use dynapix_io::{FrameStatus, StampedPose, StampedStatus, Trajectory};
 use crate::config::Config;
 use crate::error::{BadFrame, Error, Result};
 use crate::input::Input;
+use crate::observe::{PassInfo, RunObserver};
 use crate::online::{FrameResult, OnlineDynaPix, RgbdFrame};
 use crate::progress::{Progress, Task};
 use crate::record::RunRecord;
@@ -139,6 +141,19 @@ pub fn run_online(
     progress: &dyn Progress,
     each: &mut dyn FnMut(&FrameResult),
 ) -> (OnlineRun, Result<()>) {
+    run_online_observed(input, config, masks, progress, each, None)
+}
+
+/// [`run_online`] shown to `observer`: the run's start ([`RunObserver::pass_begins`], pass 1),
+/// every frame and its end ([`RunObserver::online_ends`]). The results are the same.
+pub fn run_online_observed(
+    input: &Input,
+    config: &Config,
+    masks: Option<&Path>,
+    progress: &dyn Progress,
+    each: &mut dyn FnMut(&FrameResult),
+    observer: Option<Arc<dyn RunObserver>>,
+) -> (OnlineRun, Result<()>) {
     let mut run = OnlineRun::default();
     let masks = match online_masks(input, config, masks) {
         Ok(m) => m,
@@ -150,6 +165,19 @@ pub fn run_online(
     };
     run.lookahead = online.lookahead();
     let label = format!("{} online", config.method);
+    let pinhole = input.camera.pinhole();
+    let info = PassInfo {
+        number: 1,
+        label: &label,
+        frames: input.len(),
+        camera: &pinhole,
+        ground_truth: input.sequence.groundtruth.as_ref(),
+        weighted: config.method.terms().is_some(),
+    };
+    if let Some(o) = &observer {
+        online.set_observer(o.clone());
+        o.pass_begins(&info);
+    }
     let task = Task::begin(progress, &label, input.len());
     let started = Instant::now();
     let load = |i: usize| {
@@ -199,6 +227,9 @@ pub fn run_online(
     );
     run.keyframes = system.map().num_keyframes();
     run.map_points = system.map().num_points();
+    if let Some(o) = &observer {
+        o.online_ends(&info, &run.refined);
+    }
     (run, finished)
 }
 

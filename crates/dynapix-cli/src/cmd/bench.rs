@@ -60,6 +60,7 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         allow_missing_prob: false,
         allow_untracked: true,
         skip_bad_frames: false,
+        viz: Default::default(),
         online: args.online,
         lookahead: args.lookahead,
     };

@@ -162,6 +162,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     out,
                     runs: 1,
                     first_run: 0,
+                    observer: None,
                 },
                 bars,
             )?;

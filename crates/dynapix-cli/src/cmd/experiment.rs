@@ -172,6 +172,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                     out: dir.clone(),
                     runs: 1,
                     first_run: *k,
+                    observer: None,
                 };
                 let r = execute(spec, &hidden);
                 let msg = format!("{name} {}", config.method);

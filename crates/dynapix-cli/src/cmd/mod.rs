@@ -9,4 +9,5 @@ pub mod motion;
 pub mod run;
 pub mod slam;
 pub mod synth;
+pub mod viz;
 pub mod vocab;

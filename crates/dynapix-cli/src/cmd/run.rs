@@ -186,6 +186,9 @@ pub struct Args {
     /// trajectory and status up to it (`"complete": false`).
     #[arg(long)]
     pub skip_bad_frames: bool,
+    /// The Rerun viewer.
+    #[command(flatten)]
+    pub viz: super::viz::VizArgs,
 }
 
 /// What one run produced (used by `experiment` and `demo`).
@@ -228,6 +231,8 @@ pub struct RunSpec<'a> {
     pub runs: usize,
     /// Index of the first run (an experiment runs run k alone).
     pub first_run: u64,
+    /// Who watches the passes (`--rerun`).
+    pub observer: Option<std::sync::Arc<dyn dynapix::RunObserver>>,
 }
 
 /// Evaluates `trajectory`, written to `dir/trajectory.txt`, from memory against the
@@ -310,7 +315,10 @@ pub fn execute(spec: RunSpec<'_>, bars: &Bars) -> anyhow::Result<RunOutcome> {
     if spec.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    let runner = OfflineRunner::new(&spec.config, spec.input, spec.options.clone())?;
+    let mut runner = OfflineRunner::new(&spec.config, spec.input, spec.options.clone())?;
+    if let Some(o) = &spec.observer {
+        runner = runner.with_observer(o.clone());
+    }
     let keep = kept_paths(spec.input, &runner);
     let keep: Vec<(&str, &Path)> = keep.iter().map(|(w, p)| (*w, p.as_path())).collect();
     check_out(&spec.out, &keep)?;
@@ -458,6 +466,7 @@ pub fn execute_online(
     masks: Option<&Path>,
     out: &Path,
     bars: &Bars,
+    observer: Option<std::sync::Arc<dyn dynapix::RunObserver>>,
 ) -> anyhow::Result<RunOutcome> {
     check_out(out, &[("the sequence", input.sequence.dir.as_path())])?;
     // DynaPix+ masks (`--masks`, else the sequence's `mask/`), checked before anything is
@@ -466,7 +475,15 @@ pub fn execute_online(
     let masks = masks.as_deref();
     let staged = OutputFolder::begin(out, RESULT_MARKERS)?;
     let mut record = RunRecord::online(input, config, masks);
-    let result = online_into(input, config, masks, staged.path(), &mut record, bars);
+    let result = online_into(
+        input,
+        config,
+        masks,
+        staged.path(),
+        &mut record,
+        bars,
+        observer,
+    );
     if let Err(e) = &result {
         let (why, frame) = stop_reason(e);
         record.mark_incomplete(why, frame);
@@ -508,8 +525,10 @@ fn online_into(
     dir: &Path,
     record: &mut RunRecord,
     bars: &Bars,
+    observer: Option<std::sync::Arc<dyn dynapix::RunObserver>>,
 ) -> anyhow::Result<RunOutcome> {
-    let (run, result) = dynapix::run_online(input, config, masks, bars, &mut |_| {});
+    let (run, result) =
+        dynapix::run_online_observed(input, config, masks, bars, &mut |_| {}, observer);
     if let Err(e) = result {
         // Keep what was reported up to the frame that stopped the run.
         write_online_poses(dir, &run)?;
@@ -630,11 +649,22 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     check_out(&args.out, &keep)?;
     let input = args.seq.open(&config)?;
     let method = config.method;
+    let viz = args
+        .viz
+        .open(&format!("{method} {}", args.seq.seq_dir.display()))?;
+    let observer = viz.as_ref().map(super::viz::Viz::observer);
     let o = if args.online {
         if args.runs != 1 {
             bail!("--online runs once (the system is deterministic); drop --runs");
         }
-        execute_online(&input, &config, args.masks.as_deref(), &args.out, bars)?
+        execute_online(
+            &input,
+            &config,
+            args.masks.as_deref(),
+            &args.out,
+            bars,
+            observer,
+        )?
     } else {
         let options = RunOptions {
             cache_dir: cache_for(&input, args.cache.clone(), args.no_cache),
@@ -651,10 +681,14 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 out: args.out.clone(),
                 runs: args.runs,
                 first_run: 0,
+                observer,
             },
             bars,
         )?
     };
+    if let Some(v) = viz {
+        v.finish()?;
+    }
     let ate = |a: Option<f64>| a.map_or_else(|| "n/a".to_string(), |a| format!("{a:.4} m"));
     for p in &o.earlier_passes {
         println!(

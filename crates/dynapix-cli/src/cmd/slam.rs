@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use dynapix::PassOutput;
-use dynapix::stages::{PassWeights, SlamSession, load_vocabulary, run_pass};
+use dynapix::stages::{PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed};
 use dynapix::{Input, Method, VocabularyChoice};
 use dynapix_io::OutputFolder;
 use serde_json::json;
@@ -75,6 +75,9 @@ pub struct Args {
     /// naming it, keeping the trajectory and status up to it (`"complete": false`).
     #[arg(long)]
     pub skip_bad_frames: bool,
+    /// The Rerun viewer.
+    #[command(flatten)]
+    pub viz: super::viz::VizArgs,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -216,8 +219,27 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         Some(path) => enter_localization(&mut session, path, &input)?,
         None => String::new(),
     };
+    let viz = args
+        .viz
+        .open(&format!("slam {}", args.seq.seq_dir.display()))?;
     let staged = OutputFolder::begin(&args.out, RESULT_MARKERS)?;
-    let result = run_pass(&input, &mut session, PassWeights::None, None, "slam", bars);
+    let observer = viz.as_ref().map(super::viz::Viz::observer);
+    let watch = observer.as_deref().map(|o| Watch {
+        observer: o,
+        number: 1,
+    });
+    let result = run_pass_observed(
+        &input,
+        &mut session,
+        PassWeights::None,
+        None,
+        "slam",
+        bars,
+        watch,
+    );
+    if let Some(v) = viz {
+        v.finish()?;
+    }
     let mut record = json!({
         "command": "slam",
         "method": Method::Orbslam2.name(),

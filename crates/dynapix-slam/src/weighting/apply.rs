@@ -59,6 +59,16 @@ pub struct UpdateStats {
 /// frame at once (spec §7.14: an atomic "bad" instead of the reference's lagging flag).
 /// The reference only tests observations with depth (spec §2.3).
 pub fn update_matched_points(map: &mut Map, frame: &mut Frame) -> UpdateStats {
+    update_matched_points_logged(map, frame, None)
+}
+
+/// [`update_matched_points`] that also appends the world position of every removed point to
+/// `removed` when given (for a viewer; nothing is allocated without it).
+pub fn update_matched_points_logged(
+    map: &mut Map,
+    frame: &mut Frame,
+    mut removed: Option<&mut Vec<nalgebra::Vector3<f64>>>,
+) -> UpdateStats {
     let p = map.params.dynapix.clone();
     let mut stats = UpdateStats::default();
     if !p.enabled() {
@@ -87,7 +97,10 @@ pub fn update_matched_points(map: &mut Map, frame: &mut Frame) -> UpdateStats {
         }
     }
     for (i, id) in doomed {
-        if map.point(id).is_some() {
+        if let Some(mp) = map.point(id) {
+            if let Some(out) = removed.as_deref_mut() {
+                out.push(mp.position);
+            }
             map.cull_point(id);
             stats.deleted += 1;
         }

@@ -59,6 +59,7 @@ use crate::combine::FrameCues;
 use crate::config::{Config, Cues};
 use crate::error::{Error, Result};
 use crate::input::Camera;
+use crate::observe::{FrameView, RunObserver, StageTimes};
 use crate::slam::{frame_status, load_vocabulary};
 
 mod steps;
@@ -169,6 +170,8 @@ pub struct OnlineDynaPix {
     /// the motion map.
     features: FeatureStage<OrbExtractor>,
     core: Core,
+    /// Who watches the frames ([`OnlineDynaPix::set_observer`]).
+    observer: Option<Arc<dyn RunObserver>>,
 }
 
 /// The online schedule apart from the SLAM system: everything the motion map of a frame
@@ -303,7 +306,16 @@ impl OnlineDynaPix {
                 next_index: 0,
                 ahead: None,
             },
+            observer: None,
         })
+    }
+
+    /// Shows every processed frame to `observer` ([`RunObserver::frame`]; the caller reports
+    /// the run's start and end, as [`crate::stream::run_online_observed`] does). The results
+    /// are the same as without it.
+    pub fn set_observer(&mut self, observer: Arc<dyn RunObserver>) {
+        self.system.record_removed_points(true);
+        self.observer = Some(observer);
     }
 
     /// The SLAM system (map, keyframes, full trajectory so far). Between pushes the newest
@@ -474,6 +486,34 @@ impl OnlineDynaPix {
             }
         }
         let pose_wc = tracked_cw.map(|cw| cw.inverse());
+        if let Some(observer) = &self.observer {
+            let times = StageTimes {
+                motion_ms: Some(motion_ms),
+                extract_ms: 0.0,
+                track_ms: slam_ms,
+                mapping_ms: mapped.as_ref().map_or(0.0, |m| m.mapping_seconds * 1e3),
+                loop_ms: mapped
+                    .as_ref()
+                    .map_or(0.0, |m| m.loop_closing_seconds * 1e3),
+            };
+            let rgb = observer.wants_images().then_some(&images.rgb);
+            let mut view = FrameView::new(
+                index,
+                frame.t,
+                &res,
+                rgb,
+                &images.depth,
+                motion.weights.as_ref(),
+                times,
+                &self.system,
+            );
+            // Online a keyframe is mapped (and its loop closed) during the next push.
+            view.loop_closed = mapped
+                .as_ref()
+                .and_then(|m| m.loop_closure.as_ref())
+                .map(|l| (l.loop_timestamp, l.matched_points));
+            observer.frame(&view);
+        }
         core.remember(Past {
             index,
             images,

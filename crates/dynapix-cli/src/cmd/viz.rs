@@ -1,0 +1,92 @@
+//! `--rerun` / `--rerun-save FILE.rrd`: watch a run in the Rerun viewer (`dynapix-rerun`).
+//! Built only with the cargo feature `viz` (`cargo build --release -p dynapix-cli --features
+//! viz`); without it the flags are still listed and say how to get them.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use dynapix::RunObserver;
+
+/// The viewer flags of `run` and `slam`.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct VizArgs {
+    /// Show the run live in the Rerun viewer: connects to a viewer listening on 127.0.0.1:9876
+    /// or starts `rerun` (`pip install rerun-sdk==0.36.*`; run `rerun analytics disable` once).
+    /// Needs a build with `--features viz`.
+    #[arg(long)]
+    pub rerun: bool,
+    /// Write the run as a Rerun recording (open it with `rerun FILE.rrd`). Needs a build with
+    /// `--features viz`.
+    #[arg(long, value_name = "FILE.rrd", conflicts_with = "rerun")]
+    pub rerun_save: Option<PathBuf>,
+}
+
+/// A run's viewer, when one was asked for.
+#[cfg_attr(not(feature = "viz"), allow(dead_code))]
+pub struct Viz {
+    #[cfg(feature = "viz")]
+    observer: Arc<dynapix_rerun::RerunObserver>,
+    #[cfg(not(feature = "viz"))]
+    observer: Arc<dyn RunObserver>,
+}
+
+impl VizArgs {
+    /// The viewer asked for (named `name`, e.g. the sequence folder), or `None`.
+    pub fn open(&self, name: &str) -> anyhow::Result<Option<Viz>> {
+        if !self.rerun && self.rerun_save.is_none() {
+            return Ok(None);
+        }
+        open(self, name).map(Some)
+    }
+}
+
+#[cfg(feature = "viz")]
+fn open(args: &VizArgs, name: &str) -> anyhow::Result<Viz> {
+    use dynapix_rerun::{RerunObserver, RerunParams, Target};
+    let target = match &args.rerun_save {
+        Some(path) => {
+            let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+            if let Some(dir) = dir {
+                dynapix_io::output::check_writable_dir(dir).map_err(|e| {
+                    anyhow::anyhow!("cannot write {}: {}", path.display(), e.reason())
+                })?;
+            }
+            Target::Save(path.clone())
+        }
+        None => Target::Spawn,
+    };
+    let observer = RerunObserver::open(&target, name, RerunParams::default())?;
+    Ok(Viz {
+        observer: Arc::new(observer),
+    })
+}
+
+#[cfg(not(feature = "viz"))]
+fn open(args: &VizArgs, _name: &str) -> anyhow::Result<Viz> {
+    let flag = if args.rerun {
+        "--rerun"
+    } else {
+        "--rerun-save"
+    };
+    anyhow::bail!(
+        "{flag} needs the Rerun viewer support, which this build does not have: build with \
+         `cargo build --release -p dynapix-cli --features viz`"
+    )
+}
+
+impl Viz {
+    /// The observer to hand to the run.
+    pub fn observer(&self) -> Arc<dyn RunObserver> {
+        self.observer.clone()
+    }
+
+    /// Sends what is left to the viewer or file (a saved recording is complete after this).
+    pub fn finish(self) -> anyhow::Result<()> {
+        #[cfg(feature = "viz")]
+        {
+            self.observer.finish()?;
+            eprintln!("rerun: recording sent to {}", self.observer.target());
+        }
+        Ok(())
+    }
+}
