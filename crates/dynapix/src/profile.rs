@@ -15,7 +15,7 @@
 //! use tracing_subscriber::layer::SubscriberExt;
 //! use tracing_subscriber::util::SubscriberInitExt;
 //!
-//! let profiler = dynapix::profile::StageProfiler::new();
+//! let profiler = dynapix::bench::StageProfiler::new();
 //! tracing_subscriber::registry().with(profiler.layer()).init();
 //! profiler.start();
 //! // ... run the pipeline ...
