@@ -5,9 +5,9 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use dynapix::{OfflineRunner, RunOptions};
 use dynapix::synthetic::{Realism, SynthOptions, SyntheticSequence};
 use dynapix::{CameraChoice, Config, Input, NoProgress, RunObserver, Trajectory};
+use dynapix::{OfflineRunner, RunOptions};
 use dynapix_rerun::read::read_rrd;
 use dynapix_rerun::{RerunObserver, RerunParams, Target};
 

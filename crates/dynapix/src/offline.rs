@@ -40,8 +40,8 @@ use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::maps::{MapFolder, MapJob, MapSet, as_read_back, cached_maps};
 use crate::method::{Method, Terms};
-use crate::poses::{FramePoses, as_written};
 use crate::observe::RunObserver;
+use crate::poses::{FramePoses, as_written};
 use crate::progress::Progress;
 use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
 use crate::slam::{
