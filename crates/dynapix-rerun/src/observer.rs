@@ -359,7 +359,7 @@ impl RunObserver for RerunObserver {
                 ),
             );
         }
-        let every = |n: usize| n <= 1 || f.index % n == 0;
+        let every = |n: usize| n <= 1 || f.index.is_multiple_of(n);
         if every(self.params.images_every) {
             self.log_images(&mut st, f);
         }
