@@ -757,15 +757,10 @@ impl<'a> OfflineRunner<'a> {
         let d = &p.map.dynapix;
         let dynapix = c.method.terms().is_some();
         RunRecord {
-            sequence: self.input.record(),
-            method: c.method.name().to_string(),
-            mode: c.mode.name().to_string(),
-            schedule: None,
             cues: dynapix.then(|| c.cues().name()),
             first_pass_kind: dynapix.then(|| c.passes.first.name().to_string()),
             weighted_passes: dynapix.then_some(c.passes.weighted),
             oracle_poses: Some(c.motion.poses == PoseSource::GroundTruth),
-            ground_truth_used_at_run_time: Some(false),
             loop_closing: Some(p.loop_closing.enabled),
             masks: c.method.needs_masks().then(|| self.masks_dir()),
             dynapix: Some(WeightingRecord {
@@ -776,21 +771,7 @@ impl<'a> OfflineRunner<'a> {
                 ba_weight_clamp: dynapix_slam::weighting::ba_weight_clamp(d),
                 threshold: c.method.thresholds().then_some(f64::from(d.gamma_add)),
             }),
-            config: c.to_json_value(),
-            outputs: None,
-            first_pass: None,
-            prob: None,
-            passes: None,
-            nothing_tracked: None,
-            invalid_depth: None,
-            runs: None,
-            seed: None,
-            earlier_passes: None,
-            skipped_frames: None,
-            results: None,
-            complete: None,
-            error: None,
-            failed_frame: None,
+            ..RunRecord::new(self.input.record(), c)
         }
     }
 }

@@ -107,6 +107,40 @@ pub struct RunRecord {
 }
 
 impl RunRecord {
+    /// The fields every run's record has (sequence, method, mode, configuration), nothing
+    /// used from ground truth yet, every optional field absent.
+    pub(crate) fn new(sequence: SequenceRecord, config: &crate::Config) -> Self {
+        Self {
+            sequence,
+            method: config.method.name().to_string(),
+            mode: config.mode.name().to_string(),
+            schedule: None,
+            cues: None,
+            first_pass_kind: None,
+            weighted_passes: None,
+            oracle_poses: None,
+            ground_truth_used_at_run_time: Some(false),
+            loop_closing: None,
+            masks: None,
+            dynapix: None,
+            config: config.to_json_value(),
+            outputs: None,
+            first_pass: None,
+            prob: None,
+            passes: None,
+            nothing_tracked: None,
+            invalid_depth: None,
+            runs: None,
+            seed: None,
+            earlier_passes: None,
+            skipped_frames: None,
+            results: None,
+            complete: None,
+            error: None,
+            failed_frame: None,
+        }
+    }
+
     /// The record of the `run.json` at `path`.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();

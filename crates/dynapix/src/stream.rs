@@ -248,38 +248,15 @@ impl RunRecord {
             ),
         ];
         Self {
-            sequence: input.record(),
-            method: config.method.name().to_string(),
-            mode: config.mode.name().to_string(),
             schedule: Some("online".into()),
-            cues: None,
-            first_pass_kind: None,
-            weighted_passes: None,
-            oracle_poses: None,
-            ground_truth_used_at_run_time: Some(false),
-            loop_closing: None,
             masks: masks.map(Path::to_path_buf),
-            dynapix: None,
-            config: config.to_json_value(),
             outputs: Some(
                 outputs
                     .iter()
                     .map(|(k, v)| (k.to_string(), v.to_string()))
                     .collect(),
             ),
-            first_pass: None,
-            prob: None,
-            passes: None,
-            nothing_tracked: None,
-            invalid_depth: None,
-            runs: None,
-            seed: None,
-            earlier_passes: None,
-            skipped_frames: None,
-            results: None,
-            complete: None,
-            error: None,
-            failed_frame: None,
+            ..RunRecord::new(input.record(), config)
         }
     }
 }
