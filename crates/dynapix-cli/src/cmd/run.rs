@@ -24,9 +24,9 @@ use anyhow::{Context, bail};
 use dynapix::evaluate::{RunEvaluation, score_run};
 use dynapix::{
     Config, Cue, Cues, FirstPass, FlowPreset, FrameStatus, Input, Method, Mode, OfflineRunner,
-    OnlineRun, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus, Trajectory,
+    OnlineRun, OutputFolder, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus,
+    Trajectory,
 };
-use dynapix_io::OutputFolder;
 use serde_json::{Value, json};
 
 use super::common::{
@@ -510,11 +510,7 @@ fn write_online_poses(
     dir: &Path,
     run: &OnlineRun,
 ) -> anyhow::Result<(Trajectory, Vec<StampedStatus>)> {
-    let reported = run.reported();
-    reported.write_tum(dir.join("trajectory.txt"))?;
-    let status = run.status();
-    dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
-    Ok((reported, status))
+    Ok(run.write_poses(dir)?)
 }
 
 /// The online run of [`execute_online`] into the folder `dir`.
