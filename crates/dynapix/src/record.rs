@@ -517,3 +517,51 @@ fn write_pretty(path: &Path, value: &impl Serialize) -> Result<()> {
     dynapix_io::write_atomic(path, text.as_bytes())?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_pass_record_round_trips_and_reads_older_records() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = PassCacheRecord {
+            config: serde_json::json!({"kind": "orbslam2", "frames": 30, "slam_pass_version": 2}),
+            status: MapsStatus::Complete,
+            stats: PassStats {
+                frames: 30,
+                tracked: 29,
+                keyframes: 4,
+                map_points: 812,
+                loops_closed: 0,
+                seconds: 1.5,
+                frames_without_prob_map: 0,
+                frames_skipped: 1,
+            },
+            poses: Some(29),
+            trajectory: Some(FileFingerprint::of(b"1.0 0 0 0 0 0 0 1\n")),
+        };
+        rec.write_in(dir.path()).unwrap();
+        let text = std::fs::read_to_string(dir.path().join(PassCacheRecord::FILE)).unwrap();
+        let v: Value = serde_json::from_str(&text).unwrap();
+        for key in ["config", "status", "stats", "poses", "trajectory"] {
+            assert!(v.get(key).is_some(), "{key} missing in {text}");
+        }
+        assert_eq!(v["status"], "complete");
+        let back = PassCacheRecord::read_in(dir.path()).unwrap().unwrap();
+        assert_eq!(back, rec);
+        // A record of an older version, without pose count and checksum, still parses (and
+        // is then refused by its reader); a damaged one says why.
+        std::fs::write(
+            dir.path().join(PassCacheRecord::FILE),
+            serde_json::json!({"config": rec.config, "status": "complete", "stats": rec.stats})
+                .to_string(),
+        )
+        .unwrap();
+        let old = PassCacheRecord::read_in(dir.path()).unwrap().unwrap();
+        assert_eq!((old.poses, old.trajectory), (None, None));
+        std::fs::write(dir.path().join(PassCacheRecord::FILE), "{").unwrap();
+        assert!(PassCacheRecord::read_in(dir.path()).unwrap().is_err());
+        assert!(PassCacheRecord::read_in(&dir.path().join("none")).is_none());
+    }
+}

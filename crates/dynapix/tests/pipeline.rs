@@ -963,3 +963,67 @@ fn a_bad_frame_stops_the_run_or_is_skipped() {
     assert_eq!(pass.status[5].status, dynapix_io::FrameStatus::Lost);
     assert_eq!(pass.stats.tracked, 19);
 }
+
+/// `dynapix slam` through the library: one ORB-SLAM2 pass, its files, the map saved and
+/// loaded again for localisation, and `slam.json` round-tripping through `SlamRecord`.
+#[test]
+fn a_slam_pass_saves_a_map_that_localises_and_its_record_round_trips() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut config = Config::default().with_method(Method::Orbslam2);
+    config.sequence.max_frames = Some(40);
+    let input = open(sequence(), &config);
+    let mut slam = dynapix::SlamPass::new(&input, &config).unwrap();
+    let pass = slam.run(&input, &NoProgress, None).unwrap();
+    assert_eq!(pass.stats.frames, 40);
+    assert!(pass.stats.tracked > 30, "{:?}", pass.stats);
+    let out = tmp.path().join("out");
+    pass.write_files(&out).unwrap();
+    pass.write_timing(&out.join("timing.csv")).unwrap();
+    let back = Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
+    assert_eq!(back.len(), pass.trajectory.len());
+    let timing = std::fs::read_to_string(out.join("timing.csv")).unwrap();
+    assert_eq!(timing.lines().count(), 41);
+    let map = tmp.path().join("map.bin");
+    let saved = slam.save_map(&map).unwrap();
+    assert_eq!(saved.keyframes, pass.stats.keyframes);
+    assert_eq!(saved.bytes as u64, std::fs::metadata(&map).unwrap().len());
+    let names: Vec<&str> = saved.steps_ms.iter().map(|s| s.0).collect();
+    assert_eq!(names, ["encode", "write"]);
+
+    // Localisation in the saved map: nothing is added to it.
+    let mut again = dynapix::SlamPass::new(&input, &config).unwrap();
+    let loaded = again.load_map(&map).unwrap();
+    assert_eq!(
+        (loaded.keyframes, loaded.points),
+        (saved.keyframes, saved.points)
+    );
+    let local = again.run(&input, &NoProgress, None).unwrap();
+    assert_eq!(local.stats.keyframes, saved.keyframes);
+    assert!(local.stats.tracked > 30, "{:?}", local.stats);
+
+    // The record: written, read back equal, the same keys as its JSON value.
+    let mut record = dynapix::SlamRecord::new(&input, &config);
+    record.save_map = Some(map.clone());
+    record.set_pass(&pass, true);
+    let path = out.join("slam.json");
+    record.write(&path).unwrap();
+    let read = dynapix::SlamRecord::read(&path).unwrap();
+    assert_eq!(json(&read), json(&record));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(json(&read), v);
+    assert_eq!(v["command"], "slam");
+    assert!(v["localize"].is_null());
+    assert_eq!(v["stats"]["frames"], 40);
+    assert_eq!(v["complete"], true);
+    assert!(v.get("failed_frame").is_none());
+    // A stopped pass: incomplete, with the error and the frame.
+    record.mark_incomplete("stopped".into(), pass.skipped.first().cloned());
+    record.write(&path).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(
+        (v["complete"].clone(), v["error"].clone()),
+        (false.into(), "stopped".into())
+    );
+}
