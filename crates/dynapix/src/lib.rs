@@ -118,4 +118,5 @@ pub use record::{
 };
 pub use slam::MapFileStats;
 pub use slam_tool::SlamPass;
+pub use store::MapSet;
 pub use stream::{OnlineRun, online_masks, run_online, run_online_observed};
