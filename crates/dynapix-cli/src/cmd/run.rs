@@ -6,16 +6,16 @@
 //!
 //! Without `--oracle-poses` nothing at run time uses ground truth: the poses for splatting come
 //! from the system's own ORB-SLAM2 first pass, the background from `background/` when present,
-//! else it is reconstructed. A sequence's own `prob/` is used when present, and `run.json`
-//! says what made it (its `motion.json`). `run.json` records the whole configuration and the
+//! else it is reconstructed. A sequence's own `prob/` is used when present, and `run.json` says
+//! what made it (its `motion.json`). `run.json` records the whole configuration and the
 //! provenance of every input.
 //!
-//! Outputs in `--out`: `trajectory.txt` (TUM, tracked frames, camera-to-world),
-//! `status.txt`, `keyframes.txt`, `loops.txt`, `run.json`, and with ground truth `eval.json`
-//! and plots. With `--runs N > 1`, run k (seed + k) goes to `run_<k>/` and `trajectory.txt`
-//! is run 0's. The result set is written beside `--out` and replaces it as a whole at the end
-//! (`dynapix_io::output`), also when the run stops at a frame it cannot read: then with what
-//! it had computed and `"complete": false` in `run.json` (`--skip-bad-frames` skips such
+//! Outputs in `--out`: `trajectory.txt` (TUM, tracked frames, camera-to-world), `status.txt`,
+//! `keyframes.txt`, `loops.txt`, `run.json`, and with ground truth `eval.json` and plots. With
+//! `--runs N > 1`, run k (seed + k) goes to `run_<k>/` and `trajectory.txt` is run 0's. The
+//! result set is written beside `--out` and replaces it as a whole at the end
+//! ([`dynapix::OutputFolder`]), also when the run stops at a frame it cannot read: then with
+//! what it had computed and `"complete": false` in `run.json` (`--skip-bad-frames` skips such
 //! frames instead and lists them).
 
 use std::path::{Path, PathBuf};

@@ -2,12 +2,12 @@
 //! sequence folder and writes `trajectory.txt` (TUM, every tracked frame, camera-to-world),
 //! `status.txt` (per frame: tracked / lost / not_initialized), `keyframes.txt`, `loops.txt`,
 //! `timing.csv` and `slam.json` (the sequence, the configuration, the counters, the skipped
-//! frames and whether the run completed) into `--out`, which is replaced as a whole at the
-//! end (written beside it first; see `dynapix_io::output`). `--save-map FILE` saves the final map
-//! (`dynapix_slam::persist` format); `--localize MAP` loads one and only tracks against it
-//! (localisation mode: no new keyframes or map points). The work and the files are the
-//! library's ([`dynapix::SlamPass`], [`dynapix::SlamRecord`]); this module parses, shows
-//! progress and prints.
+//! frames and whether the run completed) into `--out`, which is replaced as a whole at the end
+//! (written beside it first; see [`dynapix::OutputFolder`]). `--save-map FILE` saves the final
+//! map (a versioned header with CRC-32, then the map); `--localize MAP` loads one and only
+//! tracks against it (localisation mode: no new keyframes or map points). The work and the
+//! files are the library's ([`dynapix::SlamPass`], [`dynapix::SlamRecord`]); this module
+//! parses, shows progress and prints.
 
 use std::path::{Path, PathBuf};
 
