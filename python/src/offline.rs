@@ -423,7 +423,7 @@ pub fn run(
 #[pyfunction]
 pub fn read_probability(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
     let p = compute(py, move || {
-        Ok(dynapix::stages::MapFolder::read_probability(&path)?.into_image())
+        Ok(dynapix::MotionProbability::read(&path)?.into_image())
     })?;
     let (w, h) = p.dimensions();
     arrays::image_array(py, p.into_raw(), w, h, 0)

@@ -223,13 +223,24 @@ pub struct OutputFolder {
 }
 
 impl OutputFolder {
+    /// Checks, before any work, that `out` can be (re)made as a whole
+    /// ([`check_output_folder`]).
+    pub fn check(out: &Path, markers: &[&str]) -> Result<()> {
+        check_output_folder(out, markers)
+    }
+
+    /// Checks that files can be created in `dir` ([`check_writable_dir`]).
+    pub fn check_writable(dir: &Path) -> Result<()> {
+        check_writable_dir(dir)
+    }
+
     /// Takes the folder's lock ([`OutputLock::acquire`]: refused when another process holds
     /// it), checks `out` ([`check_output_folder`] with `markers`), removes staging and replaced
     /// folders of earlier interrupted runs on it whose process is gone, and creates an empty
     /// staging folder beside it. The lock is held until the commit is done or the value is
     /// dropped.
     pub fn begin(out: &Path, markers: &[&str]) -> Result<Self> {
-        check_output_folder(out, markers)?;
+        Self::check(out, markers)?;
         let lock = OutputLock::acquire(out)?;
         let (parent, name) = split(out)?;
         let listed = if parent.as_os_str().is_empty() {

@@ -68,6 +68,22 @@ impl MotionProbability {
         }))
     }
 
+    /// Reads a reference probability PNG (P = 1 − stored/1000, [`read_motion_probability`]).
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        read_motion_probability(path)
+    }
+
+    /// Writes the map as a reference probability PNG, atomically
+    /// ([`write_motion_probability`]).
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
+        write_motion_probability(path, self)
+    }
+
+    /// Writes P losslessly as PFM ([`write_prob_pfm`]).
+    pub fn write_pfm(&self, path: impl AsRef<Path>) -> Result<()> {
+        write_prob_pfm(path, &self.0)
+    }
+
     /// The static weights the SLAM backend gets for this map, quantised like the stored file
     /// (`w = trunc((1 − P)·1000)/1000`), so in-memory and on-disk maps weight identically.
     pub fn static_weights(&self) -> StaticWeights {

@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::config::Config;
 use crate::error::{Error, Result};
@@ -21,7 +21,7 @@ use crate::stream::{online_masks, run_online};
 
 /// Per-frame latency of an online bench: milliseconds spent in each `push` (the processing of
 /// the frame it releases: the pushed one, or with a lookahead the one pushed K frames before).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Latency {
     /// Mean.
     pub mean_ms: f64,
@@ -51,15 +51,16 @@ impl Latency {
     }
 }
 
-/// What a bench measured.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// What a bench measured: also the record `dynapix bench --json` writes (the ATE, the wall
+/// times of repeated runs and the build are filled in by the caller).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BenchReport {
     /// The sequence folder.
     pub sequence: PathBuf,
     /// Method name.
     pub method: String,
     /// `offline` or `online`.
-    pub schedule: &'static str,
+    pub schedule: String,
     /// Frames processed.
     pub frames: usize,
     /// Frames tracked by the final pass.
@@ -82,6 +83,16 @@ pub struct BenchReport {
     pub latency: Option<Latency>,
     /// Phases and stages (empty unless the profiler is installed as a subscriber layer).
     pub profile: Profile,
+    /// ATE RMSE (m) of the final trajectory, when ground truth exists.
+    pub ate_rmse_m: Option<f64>,
+    /// The motionless floor (m) of that ATE.
+    pub motionless_floor_m: Option<f64>,
+    /// The whole resolved configuration.
+    pub config: serde_json::Value,
+    /// Wall-clock seconds of every measured run, in order (the report is the median one's).
+    pub repeat_wall_seconds: Vec<f64>,
+    /// `release` or `debug`.
+    pub build: String,
 }
 
 impl BenchReport {
@@ -182,7 +193,7 @@ impl Clock {
         BenchReport {
             sequence: input.sequence.dir.clone(),
             method: config.method.name().to_string(),
-            schedule,
+            schedule: schedule.to_string(),
             frames,
             tracked,
             width: cam.width,
@@ -197,6 +208,16 @@ impl Clock {
             fps: frames as f64 / wall.max(1e-9),
             latency,
             profile,
+            ate_rmse_m: None,
+            motionless_floor_m: None,
+            config: config.to_json_value(),
+            repeat_wall_seconds: vec![wall],
+            build: if cfg!(debug_assertions) {
+                "debug"
+            } else {
+                "release"
+            }
+            .to_string(),
         }
     }
 }
@@ -279,5 +300,46 @@ mod tests {
         assert_eq!(l.p95_ms, 100.0);
         assert!((l.mean_ms - 22.0).abs() < 1e-12);
         assert!(Latency::of(&[]).is_none());
+    }
+
+    #[test]
+    fn the_bench_record_round_trips_through_its_json() {
+        let stage = |name: &str, seconds, calls| StageTime {
+            name: name.into(),
+            seconds,
+            calls,
+        };
+        let report = BenchReport {
+            sequence: PathBuf::from("seq"),
+            method: "dynapix".into(),
+            schedule: "online".into(),
+            frames: 30,
+            tracked: 29,
+            width: 640,
+            height: 480,
+            threads: 2,
+            wall_seconds: 12.5,
+            cpu_seconds: Some(24.25),
+            peak_rss_mib: None,
+            fps: 2.4,
+            latency: Latency::of(&[1.0, 2.0, 30.0]),
+            profile: Profile {
+                phases: vec![stage("slam pass", 3.5, 1)],
+                stages: vec![stage("flow", 1.25, 60), stage("orb", 0.5, 30)],
+            },
+            ate_rmse_m: Some(0.0125),
+            motionless_floor_m: None,
+            config: serde_json::json!({"method": "dynapix", "passes": {"weighted": 1}}),
+            repeat_wall_seconds: vec![12.5, 13.0],
+            build: "release".into(),
+        };
+        let text = serde_json::to_string_pretty(&report).unwrap();
+        let back: BenchReport = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, report);
+        // An absent value is written as `null`, as the report always had it.
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert!(v["motionless_floor_m"].is_null());
+        assert!(v["peak_rss_mib"].is_null());
+        assert_eq!(v["profile"]["stages"][0]["calls"], 60);
     }
 }

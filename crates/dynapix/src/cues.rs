@@ -27,7 +27,6 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 
 use crate::error::{Error, Result};
-use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
@@ -109,8 +108,9 @@ impl<'a> RigidityJob<'a> {
     }
 
     /// The cache key: a hash of [`RigidityJob::record`].
+    #[cfg(test)]
     pub fn key(&self) -> String {
-        Fnv64::of(self.record().to_string().as_bytes())
+        crate::hash::Fnv64::of(self.record().to_string().as_bytes())
     }
 
     fn load(&self, i: usize) -> Result<GrayDepth> {
@@ -524,6 +524,7 @@ impl GeometricInput {
     }
 
     /// Number of frames whose depth is held now.
+    #[cfg(test)]
     pub fn frames_held(&self) -> usize {
         self.depths
             .read()

@@ -18,7 +18,8 @@
 //! - [`OnlineDynaPix`]: `push(frame) → FrameResult`, motion from past frames (and an optional
 //!   fixed lookahead), a background kept from past keyframes, memory bounded by a window.
 //! - [`bench`](mod@bench): one measured run, stage by stage (`dynapix bench`).
-//! - [`stages`]: the single stages (a map job, one SLAM pass) for tools that run one alone.
+//! - [`motion_maps`] and [`SlamPass`]: the single stages the `motion` and `slam` tools run
+//!   alone (a sequence's maps into its `prob/` folder; one ORB-SLAM2 pass with map load/save).
 //! - [`evaluate`] and [`synthetic`]: ATE/RPE of trajectories; synthetic sequences.
 //! - [`MotionProbability`] and [`StaticWeights`]: P and w = 1 − P as distinct types.
 //!
@@ -63,7 +64,6 @@
 
 pub mod bench;
 pub mod evaluate;
-pub mod stages;
 pub mod synthetic;
 
 mod combine;
@@ -74,6 +74,7 @@ mod hash;
 mod input;
 mod maps;
 mod method;
+mod motion_tool;
 mod observe;
 mod offline;
 mod online;
@@ -83,23 +84,27 @@ mod profile;
 mod progress;
 mod record;
 mod slam;
+mod slam_tool;
 mod spill;
 mod store;
 mod stream;
+#[cfg(test)]
+mod tests;
 
 pub use config::{
     BackgroundSource, Config, Cue, Cues, DynaPixConfig, FirstPass, FlowPreset, MotionConfig,
     OnlineConfig, PassConfig, PoseSource, SequenceConfig, SlamConfig, VocabularyChoice,
 };
 pub use dynapix_io::{
-    FrameList, FrameStatus, MotionProbability, Pairing, Sequence, Settings, StampedPose,
-    StampedStatus, StaticWeights, Trajectory,
+    FrameList, FrameStatus, IoError, MotionProbability, OutputFolder, Pairing, Sequence, Settings,
+    StampedPose, StampedStatus, StaticWeights, Trajectory,
 };
 /// The per-map-point probability update rule of the SLAM weighting (EMA, max, latest).
 pub use dynapix_slam::weighting::ProbUpdate;
 pub use error::{BadFrame, Error, Result, StoppedPass};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
 pub use method::{Method, Mode, Terms};
+pub use motion_tool::{MotionOptions, MotionOutput, motion_maps};
 pub use observe::{
     FrameView, KeypointUse, KeypointView, MapPointView, PassInfo, RunObserver, StageTimes,
 };
@@ -109,6 +114,9 @@ pub use pass::{FrameTiming, PassOutput, PassStats};
 pub use progress::{NoProgress, Progress, ProgressEvent};
 pub use record::{
     CameraRecord, FileFingerprint, GroundTruthRecord, MapsStatus, MotionRecord, OrbRecord,
-    PassRecord, RunRecord, SequenceRecord, WeightingRecord,
+    PassRecord, RunRecord, SequenceRecord, SlamRecord, WeightingRecord,
 };
+pub use slam::MapFileStats;
+pub use slam_tool::SlamPass;
+pub use store::MapSet;
 pub use stream::{OnlineRun, online_masks, run_online, run_online_observed};

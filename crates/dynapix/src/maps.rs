@@ -31,14 +31,13 @@ use crate::combine::FrameCues;
 use crate::config::{Config, Cues, FlowPreset};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::error::{Error, Result};
-use crate::hash::Fnv64;
 use crate::input::Input;
 use crate::poses::FramePoses;
 use crate::progress::{Progress, Task};
 use crate::record::MapsStatus;
 pub(crate) use crate::record::as_read_back;
 use crate::store::MapSink;
-pub use crate::store::{CacheCheck, MapFolder, MapSet};
+pub use crate::store::{MapFolder, MapSet};
 
 /// Version of the motion-map computation, part of every cache key: bump it when a change of
 /// the motion algorithms changes their output without changing a parameter (2: splatting
@@ -253,11 +252,6 @@ impl<'a> MapJob<'a> {
             r["bad_frames_skipped"] = b;
         }
         r
-    }
-
-    /// The cache key: a hash of [`MapJob::record`].
-    pub fn key(&self) -> String {
-        Fnv64::of(self.record().to_string().as_bytes())
     }
 
     /// Checks every frame's files before anything is computed: sizes against the camera,
@@ -495,18 +489,6 @@ pub fn cached_maps(
         record,
         ground_truth: Some(ground_truth),
     })
-}
-
-/// Computes every frame of `job` (but the bad frames of a run that skips them) into `folder`
-/// and records it complete.
-pub fn compute_into(
-    job: &MapJob<'_>,
-    folder: &MapFolder,
-    config: &Value,
-    label: &str,
-    progress: &dyn Progress,
-) -> Result<SequenceStats> {
-    compute_maps(job, Some(folder), config, label, progress).map(|(_, stats)| stats)
 }
 
 /// Computes every frame of `job` (but the bad frames of a run that skips them) into `folder`

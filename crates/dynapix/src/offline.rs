@@ -43,7 +43,9 @@ use crate::method::{Method, Terms};
 use crate::observe::RunObserver;
 use crate::poses::{FramePoses, as_written};
 use crate::progress::Progress;
-use crate::record::{FileFingerprint, PassRecord, RunRecord, WeightingRecord};
+use crate::record::{
+    FileFingerprint, MapsStatus, PassCacheRecord, PassRecord, RunRecord, WeightingRecord,
+};
 use crate::slam::{
     PassOutput, PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed,
 };
@@ -182,46 +184,37 @@ fn write_first_pass_cache(dir: &Path, doc: &Value, out: &PassOutput) -> Result<(
     let traj_path = dir.join("trajectory.txt");
     out.trajectory.write_tum(&traj_path)?;
     let bytes = std::fs::read(&traj_path).map_err(|e| dynapix_io::IoError::io(&traj_path, e))?;
-    let rec = json!({
-        "config": doc,
-        "status": "complete",
-        "stats": out.stats,
-        "poses": out.trajectory.len(),
-        "trajectory": FileFingerprint::of(&bytes),
-    });
-    dynapix_io::write_atomic(dir.join("pass.json"), rec.to_string().as_bytes())?;
-    Ok(())
+    PassCacheRecord {
+        config: doc.clone(),
+        status: MapsStatus::Complete,
+        stats: out.stats,
+        poses: Some(out.trajectory.len() as u64),
+        trajectory: Some(FileFingerprint::of(&bytes)),
+    }
+    .write_in(dir)
 }
 
 /// The cached first-pass trajectory in `dir` when its record says `doc` and the file is the
 /// one recorded (size, checksum, pose count); `None` when there is none, with a warning when
 /// there is one that is damaged (the pass is then run again).
 fn read_cached_first_pass(dir: &Path, doc: &Value) -> Option<Trajectory> {
-    let rec_path = dir.join("pass.json");
+    let rec_path = dir.join(PassCacheRecord::FILE);
     let traj_path = dir.join("trajectory.txt");
-    let text = std::fs::read_to_string(&rec_path).ok()?;
+    let parsed = PassCacheRecord::read_in(dir)?;
     let check = || -> std::result::Result<Trajectory, String> {
-        let rec: Value =
-            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", rec_path.display()))?;
-        if rec.get("config") != Some(&as_read_back(doc))
-            || rec.get("status").and_then(Value::as_str) != Some("complete")
-        {
+        let rec = parsed?;
+        if !as_read_back(doc).eq(&rec.config) || rec.status != MapsStatus::Complete {
             return Err(format!(
                 "{} does not describe a complete first pass of this key",
                 rec_path.display()
             ));
         }
-        let (Some(poses), Some(expected)) = (
-            rec.get("poses").and_then(Value::as_u64),
-            rec.get("trajectory"),
-        ) else {
+        let (Some(poses), Some(expected)) = (rec.poses, rec.trajectory) else {
             return Err(format!(
                 "{} lists no pose count or checksum (written by an older version)",
                 rec_path.display()
             ));
         };
-        let expected: FileFingerprint = serde_json::from_value(expected.clone())
-            .map_err(|e| format!("{}: {e}", rec_path.display()))?;
         let bytes =
             std::fs::read(&traj_path).map_err(|e| format!("{}: {e}", traj_path.display()))?;
         if FileFingerprint::of(&bytes) != expected {

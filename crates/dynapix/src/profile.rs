@@ -42,7 +42,7 @@ pub const STAGE_TARGET: &str = "dynapix::stage";
 pub const PHASE_TARGET: &str = "dynapix::phase";
 
 /// Time spent in one stage or phase.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct StageTime {
     /// The span name (e.g. `orb extraction`, `rigidity: flow`).
     pub name: String,
@@ -53,7 +53,7 @@ pub struct StageTime {
 }
 
 /// What a profiler measured between [`StageProfiler::start`] and [`StageProfiler::stop`].
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Profile {
     /// Phases, by name.
     pub phases: Vec<StageTime>,

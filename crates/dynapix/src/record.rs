@@ -168,6 +168,125 @@ impl RunRecord {
     }
 }
 
+/// `slam.json`: what one `dynapix slam` pass read (sequence, configuration, the map it loaded
+/// or saves) and what it gave (the pass's counters, the skipped frames), and whether it
+/// finished.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SlamRecord {
+    /// The tool that wrote the record (`slam`).
+    pub command: String,
+    /// The method (`orbslam2`).
+    pub method: String,
+    /// The sequence as read.
+    pub sequence: SequenceRecord,
+    /// The map loaded for localisation (`null`: none).
+    pub localize: Option<PathBuf>,
+    /// Where the final map is saved (`null`: nowhere).
+    pub save_map: Option<PathBuf>,
+    /// The whole resolved configuration.
+    pub config: Value,
+    /// The pass's counters (also of a pass that stopped, up to where it stopped).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stats: Option<PassStats>,
+    /// The bad frames skipped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skipped_frames: Option<Vec<BadFrame>>,
+    /// `true` when the pass finished.
+    pub complete: bool,
+    /// What stopped an incomplete pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The frame that stopped it, when a frame did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failed_frame: Option<BadFrame>,
+}
+
+impl SlamRecord {
+    /// The record of a `slam` pass of `config` on `input` before it ran: no map loaded or
+    /// saved, no results, not complete.
+    pub fn new(input: &crate::Input, config: &crate::Config) -> Self {
+        Self {
+            command: "slam".into(),
+            method: crate::Method::Orbslam2.name().into(),
+            sequence: input.record(),
+            localize: None,
+            save_map: None,
+            config: config.to_json_value(),
+            stats: None,
+            skipped_frames: None,
+            complete: false,
+            error: None,
+            failed_frame: None,
+        }
+    }
+
+    /// The record of the `slam.json` at `path`.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| dynapix_io::IoError::io(path, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::file(path, format!("not a slam record: {e}")))
+    }
+
+    /// Writes the record to `path` atomically (pretty JSON).
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<()> {
+        write_pretty(path.as_ref(), self)
+    }
+
+    /// Records what `pass` gave (its counters and skipped frames); `complete` when it
+    /// finished.
+    pub fn set_pass(&mut self, pass: &crate::PassOutput, complete: bool) {
+        self.stats = Some(pass.stats);
+        self.skipped_frames = Some(pass.skipped.clone());
+        self.complete = complete;
+    }
+
+    /// Marks the record stopped by `error` (at `failed_frame` when a frame stopped it).
+    pub fn mark_incomplete(&mut self, error: String, failed_frame: Option<BadFrame>) {
+        self.complete = false;
+        self.error = Some(error);
+        self.failed_frame = failed_frame;
+    }
+}
+
+/// `pass.json` in a first-pass cache folder: the completion record of the cached
+/// `trajectory.txt` (the key document, the pose count, the file's size and checksum).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub(crate) struct PassCacheRecord {
+    /// The key document (its hash names the folder).
+    pub config: Value,
+    /// `complete` (the only state written).
+    pub status: MapsStatus,
+    /// The pass's counters.
+    pub stats: PassStats,
+    /// Poses in `trajectory.txt` (absent in records of older versions).
+    #[serde(default)]
+    pub poses: Option<u64>,
+    /// Size and checksum of `trajectory.txt` (absent in records of older versions).
+    #[serde(default)]
+    pub trajectory: Option<FileFingerprint>,
+}
+
+impl PassCacheRecord {
+    /// The record file in a first-pass cache folder.
+    pub const FILE: &'static str = "pass.json";
+
+    /// The record in `dir`, when there is one: `Err` says why it does not parse.
+    pub fn read_in(dir: &Path) -> Option<std::result::Result<Self, String>> {
+        let path = dir.join(Self::FILE);
+        let text = std::fs::read_to_string(&path).ok()?;
+        Some(serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display())))
+    }
+
+    /// Writes the record into `dir` atomically (compact JSON, as it always was).
+    pub fn write_in(&self, dir: &Path) -> Result<()> {
+        let path = dir.join(Self::FILE);
+        let text = serde_json::to_string(self).map_err(|e| Error::file(&path, e.to_string()))?;
+        dynapix_io::write_atomic(&path, text.as_bytes())?;
+        Ok(())
+    }
+}
+
 /// One pass of an offline run in [`RunRecord::passes`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PassRecord {
@@ -397,4 +516,52 @@ fn write_pretty(path: &Path, value: &impl Serialize) -> Result<()> {
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::file(path, e.to_string()))?;
     dynapix_io::write_atomic(path, text.as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_pass_record_round_trips_and_reads_older_records() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = PassCacheRecord {
+            config: serde_json::json!({"kind": "orbslam2", "frames": 30, "slam_pass_version": 2}),
+            status: MapsStatus::Complete,
+            stats: PassStats {
+                frames: 30,
+                tracked: 29,
+                keyframes: 4,
+                map_points: 812,
+                loops_closed: 0,
+                seconds: 1.5,
+                frames_without_prob_map: 0,
+                frames_skipped: 1,
+            },
+            poses: Some(29),
+            trajectory: Some(FileFingerprint::of(b"1.0 0 0 0 0 0 0 1\n")),
+        };
+        rec.write_in(dir.path()).unwrap();
+        let text = std::fs::read_to_string(dir.path().join(PassCacheRecord::FILE)).unwrap();
+        let v: Value = serde_json::from_str(&text).unwrap();
+        for key in ["config", "status", "stats", "poses", "trajectory"] {
+            assert!(v.get(key).is_some(), "{key} missing in {text}");
+        }
+        assert_eq!(v["status"], "complete");
+        let back = PassCacheRecord::read_in(dir.path()).unwrap().unwrap();
+        assert_eq!(back, rec);
+        // A record of an older version, without pose count and checksum, still parses (and
+        // is then refused by its reader); a damaged one says why.
+        std::fs::write(
+            dir.path().join(PassCacheRecord::FILE),
+            serde_json::json!({"config": rec.config, "status": "complete", "stats": rec.stats})
+                .to_string(),
+        )
+        .unwrap();
+        let old = PassCacheRecord::read_in(dir.path()).unwrap().unwrap();
+        assert_eq!((old.poses, old.trajectory), (None, None));
+        std::fs::write(dir.path().join(PassCacheRecord::FILE), "{").unwrap();
+        assert!(PassCacheRecord::read_in(dir.path()).unwrap().is_err());
+        assert!(PassCacheRecord::read_in(&dir.path().join("none")).is_none());
+    }
 }

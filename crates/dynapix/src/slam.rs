@@ -114,20 +114,6 @@ impl SlamSession {
         )
     }
 
-    /// Tracks one frame (colour image converted to grey like ORB-SLAM2).
-    pub fn track(
-        &mut self,
-        t: f64,
-        rgb: &RgbImage,
-        depth: &DepthImage,
-        weights: Option<&StaticWeights>,
-        mask: Option<&GrayImage>,
-    ) -> Result<FrameResult> {
-        let gray = rgb_to_gray_orbslam(rgb);
-        let features = self.features.extract(&gray, weights);
-        self.track_features(t, &gray, features, depth, weights, mask)
-    }
-
     /// A copy of the system's feature extraction, to extract frames ahead on another thread
     /// ([`SlamSession::track_features`]).
     pub fn feature_stage(&self) -> FeatureStage<OrbExtractor> {
@@ -175,7 +161,7 @@ impl SlamSession {
     /// session's camera (with `depth_factor`), ORB pyramid and vocabulary, and switches the
     /// system to localisation mode on it (only tracking against the map). Errors name the
     /// file.
-    pub fn load_map(&mut self, path: &Path, depth_factor: f64) -> Result<MapLoad> {
+    pub fn load_map(&mut self, path: &Path, depth_factor: f64) -> Result<MapFileStats> {
         use dynapix_slam::persist::{PersistError, decode};
         let t0 = Instant::now();
         let bytes = std::fs::read(path).map_err(|source| PersistError::Io {
@@ -200,19 +186,21 @@ impl SlamSession {
         let params = system.map().params.clone();
         system.enter_localization(saved.into_map(params));
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        Ok(MapLoad {
+        Ok(MapFileStats {
             keyframes,
             points,
             bytes: bytes.len(),
-            read_ms: ms(t0, t1),
-            check_ms: ms(t1, t2),
-            rebuild_ms: t2.elapsed().as_secs_f64() * 1e3,
+            steps_ms: vec![
+                ("read", ms(t0, t1)),
+                ("decode + check", ms(t1, t2)),
+                ("rebuild", t2.elapsed().as_secs_f64() * 1e3),
+            ],
         })
     }
 
     /// Encodes the system's map (`dynapix_slam::persist`, with `depth_factor`) and writes it
     /// atomically to `path`.
-    pub fn save_map(&self, path: &Path, depth_factor: f64) -> Result<MapSave> {
+    pub fn save_map(&self, path: &Path, depth_factor: f64) -> Result<MapFileStats> {
         let context = || format!("cannot save map {}", path.display());
         let system = &self.system;
         let t0 = Instant::now();
@@ -228,12 +216,14 @@ impl SlamSession {
         })?;
         let t1 = Instant::now();
         dynapix_io::write_atomic(path, &bytes).map_err(|e| Error::file(path, e.to_string()))?;
-        Ok(MapSave {
+        Ok(MapFileStats {
             keyframes: system.map().num_keyframes(),
             points: system.map().num_points(),
             bytes: bytes.len(),
-            encode_ms: (t1 - t0).as_secs_f64() * 1e3,
-            write_ms: t1.elapsed().as_secs_f64() * 1e3,
+            steps_ms: vec![
+                ("encode", (t1 - t0).as_secs_f64() * 1e3),
+                ("write", t1.elapsed().as_secs_f64() * 1e3),
+            ],
         })
     }
 
@@ -305,36 +295,19 @@ impl SlamSession {
     }
 }
 
-/// A saved map loaded by [`SlamSession::load_map`]: its size and where the time went.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MapLoad {
+/// A map file loaded or saved ([`crate::SlamPass::load_map`], [`crate::SlamPass::save_map`]):
+/// its size and where the time went.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapFileStats {
     /// Keyframes in the map.
     pub keyframes: usize,
     /// Map points in the map.
     pub points: usize,
     /// Size of the file.
     pub bytes: usize,
-    /// Milliseconds reading the file.
-    pub read_ms: f64,
-    /// Milliseconds decoding and checking it.
-    pub check_ms: f64,
-    /// Milliseconds rebuilding the live map.
-    pub rebuild_ms: f64,
-}
-
-/// A map saved by [`SlamSession::save_map`]: its size and where the time went.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MapSave {
-    /// Keyframes in the map.
-    pub keyframes: usize,
-    /// Map points in the map.
-    pub points: usize,
-    /// Size of the file.
-    pub bytes: usize,
-    /// Milliseconds encoding the map.
-    pub encode_ms: f64,
-    /// Milliseconds writing the file.
-    pub write_ms: f64,
+    /// Milliseconds per step, in order (loading: `read`, `decode + check`, `rebuild`;
+    /// saving: `encode`, `write`).
+    pub steps_ms: Vec<(&'static str, f64)>,
 }
 
 /// The weights of a pass.
@@ -465,24 +438,6 @@ fn decode(
 /// Reader threads of a SLAM pass ([`Input::stream_parallel`]).
 const PASS_READERS: usize = 2;
 
-/// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
-/// masks named like the rgb images), reporting progress as `label`.
-///
-/// A frame whose rgb or depth file cannot be used is skipped when `input` skips bad frames
-/// ([`SlamSession::skip`]: lost, listed in [`PassOutput::skipped`]), its weight map and mask
-/// unread. Otherwise, and for any other error, the pass stops there with
-/// [`Error::Stopped`], which keeps the pass up to the frame before.
-pub fn run_pass(
-    input: &Input,
-    session: &mut SlamSession,
-    weights: PassWeights<'_>,
-    masks: Option<&Path>,
-    label: &str,
-    progress: &dyn Progress,
-) -> Result<PassOutput> {
-    run_pass_observed(input, session, weights, masks, label, progress, None)
-}
-
 /// An observer of a pass and the pass's number in the run ([`PassInfo::number`]).
 #[derive(Clone, Copy)]
 pub struct Watch<'a> {
@@ -492,8 +447,16 @@ pub struct Watch<'a> {
     pub number: usize,
 }
 
-/// [`run_pass`] shown to an observer (`watch`): the pass's start and end and every tracked
-/// frame. Without one it is [`run_pass`]; with one the results are the same.
+/// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
+/// masks named like the rgb images), reporting progress as `label`.
+///
+/// A frame whose rgb or depth file cannot be used is skipped when `input` skips bad frames
+/// ([`SlamSession::skip`]: lost, listed in [`PassOutput::skipped`]), its weight map and mask
+/// unread. Otherwise, and for any other error, the pass stops there with
+/// [`Error::Stopped`], which keeps the pass up to the frame before.
+///
+/// Shown to an observer (`watch`): the pass's start and end and every tracked frame; with
+/// one the results are the same.
 pub fn run_pass_observed(
     input: &Input,
     session: &mut SlamSession,

@@ -74,6 +74,16 @@ impl OnlineRun {
         status
     }
 
+    /// Writes the poses reported so far (`trajectory.txt`, TUM) and every frame's status
+    /// (`status.txt`, skipped frames lost) into `dir`; returns both.
+    pub fn write_poses(&self, dir: &Path) -> Result<(Trajectory, Vec<StampedStatus>)> {
+        let reported = self.reported();
+        reported.write_tum(dir.join("trajectory.txt"))?;
+        let status = self.status();
+        dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
+        Ok((reported, status))
+    }
+
     /// Frames tracked.
     pub fn tracked(&self) -> usize {
         self.results

@@ -9,7 +9,6 @@ use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use dynapix::stages::{FramePoses, MapFolder, MapJob, PoseOrigin, compute_into};
 use dynapix::{
     CameraChoice, Config, FlowPreset, Input, Method, NoProgress, OnlineDynaPix, PoseSource,
     RgbdFrame, Trajectory,
@@ -405,44 +404,6 @@ fn an_offline_run_keeps_no_frame_data_in_memory() {
     );
 }
 
-/// The geometric cue read over a window of depths (what the offline maps do) gives every
-/// frame the map it gets with every depth read, and holds a window, not the sequence.
-#[test]
-fn the_geometric_cue_over_a_window_equals_the_cue_over_the_sequence() {
-    let seq = sequence();
-    let config = Config::default();
-    let input = open(seq, &config);
-    let gt = input.sequence.groundtruth.clone().unwrap();
-    let poses = FramePoses::from_trajectory(
-        &gt,
-        &input.timestamps(),
-        0.05,
-        PoseOrigin::GroundTruth {
-            path: seq.join("groundtruth.txt"),
-        },
-    )
-    .unwrap();
-    let mut params = config.motion.static_depth.clone();
-    params.window_s = 0.5;
-    let all = dynapix::stages::GeometricInput::load(&input, &poses, &params).unwrap();
-    assert_eq!(all.frames_held(), FRAMES);
-    let win = dynapix::stages::GeometricInput::windowed(&input, &poses, &params).unwrap();
-    assert_eq!(win.frames_held(), 0);
-    let frames: Vec<usize> = (0..FRAMES).collect();
-    let mut most = 0;
-    for part in frames.chunks(16) {
-        win.prepare(&input, part).unwrap();
-        most = most.max(win.frames_held());
-        for &i in part.iter().step_by(5) {
-            assert_eq!(win.frame(i).unwrap(), all.frame(i).unwrap(), "frame {i}");
-        }
-    }
-    // 16 frames and their views within ±0.5 s (30 Hz).
-    assert!(most <= 16 + 2 * 16, "{most} depths held at once");
-    // A frame outside the window is refused, not computed from missing depths.
-    assert!(win.frame(0).is_err());
-}
-
 #[test]
 fn weighted_offline_run_beats_orbslam2() {
     let tmp = tempfile::tempdir().unwrap();
@@ -674,132 +635,6 @@ fn the_cache_is_reused_only_while_nothing_that_determines_the_maps_changes() {
 /// Issue 36 item 3: every cached item is checked before use. A truncated map, a map swapped
 /// with another valid one and a truncated first-pass trajectory (also with a forged checksum)
 /// are found, recomputed, and the result is the one of the intact cache.
-#[test]
-fn a_damaged_cache_is_found_and_recomputed() {
-    use dynapix::stages::CacheCheck;
-    let tmp = tempfile::tempdir().unwrap();
-    let cache = tmp.path().join("cache");
-    let seq = camera_only(tmp.path());
-    let mut config = Config::default();
-    config.sequence.max_frames = Some(30);
-    config.motion.flow = FlowPreset::Ultrafast;
-    let input = open(&seq, &config);
-    let first = offline(&config, &input, &cache);
-    let reference = first.final_pass().unwrap().trajectory.clone();
-    let dir = first.maps[0].folder.clone().unwrap().dir;
-    let folder = MapFolder::new(&dir);
-    let rec: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("motion.json")).unwrap()).unwrap();
-    let key_doc = rec["config"].clone();
-    assert_eq!(folder.check_cache(&input, &key_doc), CacheCheck::Valid);
-    let map = |i: usize| folder.map_path(&input, i).unwrap();
-
-    // A truncated map: named, recomputed, same result.
-    let bytes = std::fs::read(map(5)).unwrap();
-    std::fs::write(map(5), &bytes[..bytes.len() / 2]).unwrap();
-    match folder.check_cache(&input, &key_doc) {
-        CacheCheck::Damaged(why) => {
-            let name = map(5).file_name().unwrap().to_string_lossy().into_owned();
-            assert!(why.contains(&name), "{why}");
-        }
-        other => panic!("{other:?}"),
-    }
-    let r = offline(&config, &input, &cache);
-    assert_eq!(json(&r.record)["prob"]["source"], "computed");
-    assert_eq!(std::fs::read(map(5)).unwrap(), bytes);
-    assert_eq!(r.final_pass().unwrap().trajectory, reference);
-
-    // A map swapped with another valid one (both decode).
-    std::fs::copy(map(12), map(11)).unwrap();
-    assert!(matches!(
-        folder.check_cache(&input, &key_doc),
-        CacheCheck::Damaged(_)
-    ));
-    let r = offline(&config, &input, &cache);
-    assert_eq!(json(&r.record)["prob"]["source"], "computed");
-    assert_eq!(r.final_pass().unwrap().trajectory, reference);
-    assert_eq!(folder.check_cache(&input, &key_doc), CacheCheck::Valid);
-
-    // A truncated first-pass trajectory: run again, not used.
-    let fp = PathBuf::from(json(&r.record)["first_pass"]["dir"].as_str().unwrap());
-    let traj = fp.join("trajectory.txt");
-    let full = std::fs::read_to_string(&traj).unwrap();
-    let half: String = full
-        .lines()
-        .take(full.lines().count() / 2)
-        .map(|l| format!("{l}\n"))
-        .collect();
-    std::fs::write(&traj, &half).unwrap();
-    let r = offline(&config, &input, &cache);
-    assert_eq!(json(&r.record)["first_pass"]["source"], "computed");
-    assert_eq!(std::fs::read_to_string(&traj).unwrap(), full);
-    assert_eq!(r.final_pass().unwrap().trajectory, reference);
-    // The same with a record whose checksum was made to match: the pose count tells.
-    std::fs::write(&traj, &half).unwrap();
-    let pass_json = fp.join("pass.json");
-    let mut rec: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&pass_json).unwrap()).unwrap();
-    rec["trajectory"] = json(&dynapix::FileFingerprint::of(half.as_bytes()));
-    std::fs::write(&pass_json, rec.to_string()).unwrap();
-    let r = offline(&config, &input, &cache);
-    assert_eq!(json(&r.record)["first_pass"]["source"], "computed");
-    assert_eq!(r.final_pass().unwrap().trajectory, reference);
-    // Intact again: reused.
-    let r = offline(&config, &input, &cache);
-    assert_eq!(
-        json(&r.record)["first_pass"]["source"],
-        "cache (key matched)"
-    );
-    assert_eq!(json(&r.record)["prob"]["source"], "cache (key matched)");
-}
-
-#[test]
-fn shared_rigidity_pairs_give_every_frame_the_map_it_gets_alone() {
-    // `motion.rigidity.shared_pairs` (the default): the chunked run computes each pair once
-    // for both of its frames; a frame computed alone must get the same map, and the maps
-    // stay close to those of the frames' own flows.
-    let config = Config::default();
-    assert!(config.motion.rigidity.shared_pairs);
-    let input = open(sequence(), &config);
-    let mut params = config.motion.rigidity.clone();
-    let shared = dynapix::stages::RigidityJob::new(&input, params.clone());
-    params.shared_pairs = false;
-    let own = dynapix::stages::RigidityJob::new(&input, params);
-    assert_ne!(
-        own.key(),
-        shared.key(),
-        "the option is part of the cache key"
-    );
-    let maps = std::sync::Mutex::new(std::collections::BTreeMap::new());
-    let stats = shared
-        .run(&NoProgress, "rigidity", |i, p| {
-            maps.lock().unwrap().insert(i, p);
-            Ok(())
-        })
-        .unwrap();
-    let maps = maps.into_inner().unwrap();
-    assert_eq!(maps.len(), FRAMES);
-    assert!(stats.pairs_used > 3 * FRAMES, "{stats:?}");
-    let (mut diff, mut n, mut same) = (0.0, 0usize, 0usize);
-    for i in [0, 1, 4, 40, 77, FRAMES - 2, FRAMES - 1] {
-        let alone = shared.frame(i).unwrap();
-        assert!(
-            alone.as_raw() == maps[&i].as_raw(),
-            "frame {i}: shared run against alone"
-        );
-        let mine = own.frame(i).unwrap();
-        same += usize::from(mine.as_raw() == alone.as_raw());
-        for (a, b) in mine.iter().zip(alone.iter()) {
-            diff += (a - b).abs() as f64;
-            n += 1;
-        }
-    }
-    // Frame 0 has only later neighbours, so the same flows; the others differ.
-    assert_eq!(same, 1, "only frame 0 is computed the same way");
-    let mean = diff / n as f64;
-    eprintln!("mean |ΔP| shared pairs against own flows: {mean:.4}");
-    assert!(mean < 0.03, "{mean}");
-}
 
 #[test]
 fn online_mode_keeps_a_real_gain() {
@@ -992,19 +827,35 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     config.motion.flow = FlowPreset::Ultrafast;
     let input = open(&seq, &config);
     // `dynapix motion --poses gt` writes SEQ/prob with its record.
-    let gt = input.sequence.groundtruth.clone().unwrap();
-    let poses = FramePoses::from_trajectory(
-        &gt,
-        &input.timestamps(),
-        0.05,
-        PoseOrigin::GroundTruth {
-            path: seq.join("groundtruth.txt"),
-        },
+    let mut gt_config = config.clone();
+    gt_config.motion.poses = PoseSource::GroundTruth;
+    let made = dynapix::motion_maps(
+        &input,
+        &gt_config,
+        &dynapix::MotionOptions::default(),
+        &NoProgress,
     )
     .unwrap();
-    let job = MapJob::new(&input, &config, &poses);
-    let folder = MapFolder::new(seq.join("prob"));
-    compute_into(&job, &folder, &job.record(), "maps", &NoProgress).unwrap();
+    assert_eq!(made.dir, seq.join("prob"));
+    assert_eq!(made.frames_computed, 20);
+    assert_eq!(made.poses.len(), 20);
+    // Its record: the maps' key document, complete, the results as returned.
+    let rec: dynapix::MotionRecord =
+        serde_json::from_str(&std::fs::read_to_string(seq.join("prob/motion.json")).unwrap())
+            .unwrap();
+    assert_eq!(rec.status, dynapix::MapsStatus::Complete);
+    assert_eq!(rec.config["poses"]["origin"]["source"], "ground_truth");
+    assert_eq!(rec.results["frames_computed"], 20);
+    assert_eq!(rec.results["frames_skipped"], 0);
+    // Called again, every map is kept.
+    let again = dynapix::motion_maps(
+        &input,
+        &gt_config,
+        &dynapix::MotionOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!((again.frames_computed, again.frames_skipped), (0, 20));
     // A run with its own poses uses the sequence's maps and says that ground truth made them.
     let input = open(&seq, &config);
     let options = RunOptions {
@@ -1111,4 +962,68 @@ fn a_bad_frame_stops_the_run_or_is_skipped() {
     assert_eq!(pass.status.len(), 20);
     assert_eq!(pass.status[5].status, dynapix_io::FrameStatus::Lost);
     assert_eq!(pass.stats.tracked, 19);
+}
+
+/// `dynapix slam` through the library: one ORB-SLAM2 pass, its files, the map saved and
+/// loaded again for localisation, and `slam.json` round-tripping through `SlamRecord`.
+#[test]
+fn a_slam_pass_saves_a_map_that_localises_and_its_record_round_trips() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut config = Config::default().with_method(Method::Orbslam2);
+    config.sequence.max_frames = Some(40);
+    let input = open(sequence(), &config);
+    let mut slam = dynapix::SlamPass::new(&input, &config).unwrap();
+    let pass = slam.run(&input, &NoProgress, None).unwrap();
+    assert_eq!(pass.stats.frames, 40);
+    assert!(pass.stats.tracked > 30, "{:?}", pass.stats);
+    let out = tmp.path().join("out");
+    pass.write_files(&out).unwrap();
+    pass.write_timing(&out.join("timing.csv")).unwrap();
+    let back = Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
+    assert_eq!(back.len(), pass.trajectory.len());
+    let timing = std::fs::read_to_string(out.join("timing.csv")).unwrap();
+    assert_eq!(timing.lines().count(), 41);
+    let map = tmp.path().join("map.bin");
+    let saved = slam.save_map(&map).unwrap();
+    assert_eq!(saved.keyframes, pass.stats.keyframes);
+    assert_eq!(saved.bytes as u64, std::fs::metadata(&map).unwrap().len());
+    let names: Vec<&str> = saved.steps_ms.iter().map(|s| s.0).collect();
+    assert_eq!(names, ["encode", "write"]);
+
+    // Localisation in the saved map: nothing is added to it.
+    let mut again = dynapix::SlamPass::new(&input, &config).unwrap();
+    let loaded = again.load_map(&map).unwrap();
+    assert_eq!(
+        (loaded.keyframes, loaded.points),
+        (saved.keyframes, saved.points)
+    );
+    let local = again.run(&input, &NoProgress, None).unwrap();
+    assert_eq!(local.stats.keyframes, saved.keyframes);
+    assert!(local.stats.tracked > 30, "{:?}", local.stats);
+
+    // The record: written, read back equal, the same keys as its JSON value.
+    let mut record = dynapix::SlamRecord::new(&input, &config);
+    record.save_map = Some(map.clone());
+    record.set_pass(&pass, true);
+    let path = out.join("slam.json");
+    record.write(&path).unwrap();
+    let read = dynapix::SlamRecord::read(&path).unwrap();
+    assert_eq!(json(&read), json(&record));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(json(&read), v);
+    assert_eq!(v["command"], "slam");
+    assert!(v["localize"].is_null());
+    assert_eq!(v["stats"]["frames"], 40);
+    assert_eq!(v["complete"], true);
+    assert!(v.get("failed_frame").is_none());
+    // A stopped pass: incomplete, with the error and the frame.
+    record.mark_incomplete("stopped".into(), pass.skipped.first().cloned());
+    record.write(&path).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(
+        (v["complete"].clone(), v["error"].clone()),
+        (false.into(), "stopped".into())
+    );
 }

@@ -5,11 +5,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use dynapix::bench::StageProfiler;
-use serde_json::json;
 
-use super::common::{Bars, SequenceArgs, write_json};
+use super::common::{Bars, SequenceArgs, write_text};
 use super::run::MethodArgs;
 
 /// Arguments of `dynapix bench`.
@@ -80,8 +78,11 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
         });
     }
     let walls: Vec<f64> = runs.iter().map(|(r, _)| r.wall_seconds).collect();
-    let (report, trajectory) = runs.swap_remove(median_index(&walls));
+    let (mut report, trajectory) = runs.swap_remove(median_index(&walls));
     let ate = dynapix::evaluate::ate_and_floor(&input.sequence, &trajectory)?;
+    report.ate_rmse_m = ate.map(|a| a.0);
+    report.motionless_floor_m = ate.map(|a| a.1);
+    report.repeat_wall_seconds = walls.clone();
     let mut text = report.to_markdown();
     if walls.len() > 1 {
         text.push_str(&repeat_lines(&walls, report.frames));
@@ -93,21 +94,10 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     }
     print!("{text}");
     if let Some(p) = &args.markdown {
-        dynapix_io::write_atomic(p, text.as_bytes())
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        write_text(p, &text)?;
     }
     if let Some(p) = &args.json {
-        let mut v = serde_json::to_value(&report)?;
-        v["ate_rmse_m"] = json!(ate.map(|a| a.0));
-        v["motionless_floor_m"] = json!(ate.map(|a| a.1));
-        v["config"] = config.to_json_value();
-        v["repeat_wall_seconds"] = json!(walls);
-        v["build"] = json!(if cfg!(debug_assertions) {
-            "debug"
-        } else {
-            "release"
-        });
-        write_json(p, &v)?;
+        write_text(p, &serde_json::to_string_pretty(&report)?)?;
     }
     Ok(())
 }

@@ -11,8 +11,6 @@ use anyhow::Context;
 use clap::builder::{PossibleValue, TypedValueParser};
 use dynapix::PassOutput;
 use dynapix::{CameraChoice, CameraPreset, Config, Input, Progress, ProgressEvent};
-use dynapix_io::trajectory::write_status;
-use dynapix_slam::loop_closing::LoopEvent;
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 /// `--camera PRESET`; a file name is refused with a message naming `--settings` (the old
@@ -236,7 +234,7 @@ fn inside(p: &Path, dir: &Path) -> bool {
 /// earlier result set ([`RESULT_MARKERS`]), and none of `keep` (what → path: the sequence, the
 /// cache, a map to load) lies inside it, since a run replaces the folder as a whole.
 pub fn check_out(out: &Path, keep: &[(&str, &Path)]) -> anyhow::Result<()> {
-    dynapix_io::output::check_output_folder(out, RESULT_MARKERS)?;
+    dynapix::OutputFolder::check(out, RESULT_MARKERS)?;
     for (what, p) in keep {
         if inside(p, out) {
             anyhow::bail!(
@@ -270,7 +268,7 @@ fn error_paths(e: &anyhow::Error) -> Vec<PathBuf> {
     for c in e.chain() {
         if let Some(l) = c.downcast_ref::<dynapix::Error>() {
             of(l, &mut out);
-        } else if let Some(io) = c.downcast_ref::<dynapix_io::IoError>() {
+        } else if let Some(io) = c.downcast_ref::<dynapix::IoError>() {
             out.push(io.path().to_path_buf());
         }
     }
@@ -291,16 +289,6 @@ pub fn partial_pass(e: &anyhow::Error) -> Option<&PassOutput> {
     library_error(e).and_then(dynapix::Error::partial_pass)
 }
 
-/// The record fields of a run that did not complete: `complete: false`, the error, and the
-/// frame that stopped it when a frame did.
-pub fn incomplete(e: &anyhow::Error) -> serde_json::Value {
-    serde_json::json!({
-        "complete": false,
-        "error": report(e),
-        "failed_frame": library_error(e).and_then(dynapix::Error::bad_frame),
-    })
-}
-
 /// Why a run stopped and the frame that stopped it, when a frame did (for
 /// [`dynapix::RunRecord::mark_incomplete`]).
 pub fn stop_reason(e: &anyhow::Error) -> (String, Option<dynapix::BadFrame>) {
@@ -310,13 +298,6 @@ pub fn stop_reason(e: &anyhow::Error) -> (String, Option<dynapix::BadFrame>) {
             .and_then(dynapix::Error::bad_frame)
             .cloned(),
     )
-}
-
-/// Adds the keys of the object `extra` to the object `record`.
-pub fn merge(record: &mut serde_json::Value, extra: serde_json::Value) {
-    if let (serde_json::Value::Object(r), serde_json::Value::Object(x)) = (record, extra) {
-        r.extend(x);
-    }
 }
 
 /// The summary words about skipped frames: `, 2 bad frame(s) skipped (frames 3, 9)`, or
@@ -342,46 +323,28 @@ pub fn skipped_note(skipped: &[dynapix::BadFrame], skipping: bool) -> String {
     }
 }
 
-/// Writes what every SLAM pass leaves in `out`: `trajectory.txt` (TUM, the current estimate
-/// of every tracked frame), `status.txt`, `keyframes.txt` and `loops.txt`.
+/// Writes what every SLAM pass leaves in `out` ([`PassOutput::write_files`]).
 pub fn write_pass(out: &Path, pass: &PassOutput) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    pass.trajectory.write_tum(out.join("trajectory.txt"))?;
-    write_status(out.join("status.txt"), &pass.status)?;
-    pass.keyframes.write_tum(out.join("keyframes.txt"))?;
-    write_loops(&out.join("loops.txt"), &pass.loops)
+    pass.write_files(out)
+        .with_context(|| format!("cannot write the pass into {}", out.display()))
 }
 
-/// Writes the closed loops, one per line: the two keyframes' timestamps, the matches and what
-/// the correction did and took (essential graph and global BA times in ms).
-pub fn write_loops(path: &Path, events: &[LoopEvent]) -> anyhow::Result<()> {
-    let mut s = String::from(
-        "# current_kf_timestamp loop_kf_timestamp matched_points corrected_keyframes fused_points essential_graph_edges essential_graph_ms global_ba_ms\n",
-    );
-    for e in events {
-        let c = &e.correction;
-        s.push_str(&format!(
-            "{:.6} {:.6} {} {} {} {} {:.3} {:.3}\n",
-            e.current_timestamp,
-            e.loop_timestamp,
-            e.matched_points,
-            c.corrected_keyframes,
-            c.fused_points,
-            c.essential_graph_edges,
-            c.essential_graph_seconds * 1e3,
-            c.global_ba_seconds * 1e3,
-        ));
-    }
-    dynapix_io::write_atomic(path, s.as_bytes())
+/// Writes `bytes` to `path`, atomically: the one writer of the CLI's own files (reports,
+/// pictures).
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    dynapix_io::write_atomic(path, bytes)
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
+}
+
+/// Writes `text` to `path`, atomically.
+pub fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
+    write_bytes(path, text.as_bytes())
 }
 
 /// Writes `value` as pretty JSON, atomically.
 pub fn write_json(path: &Path, value: &serde_json::Value) -> anyhow::Result<()> {
-    dynapix_io::write_atomic(path, serde_json::to_string_pretty(value)?.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    write_text(path, &serde_json::to_string_pretty(value)?)
 }
 
 /// "Nothing tracked" is not a success: a warning naming the sequence, then an error unless
@@ -428,7 +391,7 @@ mod tests {
     fn report_names_every_cause_once() {
         let os = std::io::Error::from(std::io::ErrorKind::NotFound);
         let os_text = os.to_string();
-        let io = dynapix_io::IoError::io("seq/rgb/1.png", os);
+        let io = dynapix::IoError::io("seq/rgb/1.png", os);
         let e = anyhow::Error::new(io).context("cannot read the sequence seq");
         let r = report(&e);
         assert_eq!(r.matches(&os_text).count(), 1, "{r}");

@@ -53,7 +53,7 @@ pub struct Args {
 
 /// Fig.-1-style overlay: the frame with the motion probability in red.
 fn overlay(rgb: &RgbImage, prob_png: &Path) -> anyhow::Result<RgbImage> {
-    let prob = dynapix_io::weights::read_motion_probability(prob_png)?;
+    let prob = dynapix::MotionProbability::read(prob_png)?;
     if prob.dimensions() != rgb.dimensions() {
         bail!("{}: size differs from the frame", prob_png.display());
     }
@@ -229,7 +229,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
             &mut std::io::Cursor::new(&mut bytes),
             image::ImageFormat::Png,
         )?;
-        dynapix_io::write_atomic(args.out.join("overlays.png"), &bytes)?;
+        super::common::write_bytes(&args.out.join("overlays.png"), &bytes)?;
     }
     let secs = t0.elapsed().as_secs_f64();
     let md = table.to_markdown();
@@ -251,7 +251,7 @@ Total time: {secs:.0} s.\n",
              background/ folder is not used)"
         }
     );
-    dynapix_io::write_atomic(args.out.join("report.md"), report.as_bytes())?;
+    super::common::write_bytes(&args.out.join("report.md"), report.as_bytes())?;
     println!("{md}");
     println!(
         "report: {} ({secs:.0} s)",

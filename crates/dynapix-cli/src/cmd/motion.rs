@@ -8,21 +8,15 @@
 //! format) plus `prob/motion.json` recording every source and parameter (read back by `run`).
 //! All frames are checked before anything is written; each output file is written
 //! atomically, and frames whose output exists are skipped unless `--force`, so an
-//! interrupted run resumes. The computation is the library's (`dynapix::maps`); this module
-//! adds the analysis outputs (pictures, float maps, evaluation against masks).
+//! interrupted run resumes. The computation and the analysis outputs (pictures, float maps,
+//! evaluation against masks) are the library's ([`dynapix::motion_maps`]); this module
+//! parses, shows progress and prints.
 
 use std::path::PathBuf;
-use std::time::Instant;
 
-use anyhow::{Context, bail};
-use dynapix::stages::{FramePoses, MapFolder, MapJob};
-use dynapix::{BackgroundSource, FlowPreset, Mode, PoseSource};
-use dynapix::{OfflineRunner, RunOptions};
-use dynapix_io::{MotionProbability, StampedPose, Trajectory};
-use dynapix_motion::metrics::MaskEvaluation;
-use dynapix_motion::{FloatImage, Variant};
-use image::{Rgb, RgbImage};
-use serde_json::json;
+use anyhow::bail;
+use dynapix::{BackgroundSource, FlowPreset, Mode, MotionOptions, PoseSource};
+use dynapix_motion::Variant;
 
 use super::common::{Bars, SequenceArgs};
 
@@ -124,17 +118,6 @@ fn parse_poses(s: &str) -> Result<PoseSource, String> {
     }
 }
 
-/// Fig.-1-style picture: the frame with moving regions tinted red in proportion to P.
-fn overlay(rgb: &RgbImage, p: &FloatImage) -> RgbImage {
-    let mut out = rgb.clone();
-    for (o, v) in out.pixels_mut().zip(p.iter()) {
-        let a = 0.7 * v.clamp(0.0, 1.0);
-        let mix = |c: u8, t: f32| ((1.0 - a) * c as f32 + a * t).round() as u8;
-        *o = Rgb([mix(o.0[0], 255.0), mix(o.0[1], 0.0), mix(o.0[2], 0.0)]);
-    }
-    out
-}
-
 /// The configuration of this command's flags over the `--config` file.
 fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
     let mut c = args.seq.base_config(args.mode)?;
@@ -184,231 +167,39 @@ fn config(args: &Args) -> anyhow::Result<dynapix::Config> {
     Ok(c)
 }
 
-/// `motion` writes its maps into the sequence (`prob/`, `prob_vis/`, `background_rec/`):
-/// a sequence folder (or its `prob/`) that is read-only, or marked so, is refused before any
-/// work, even for a user who could write there anyway.
-fn refuse_read_only(seq_dir: &std::path::Path, prob_dir: &std::path::Path) -> anyhow::Result<()> {
-    for dir in [seq_dir, prob_dir] {
-        if dir.exists() && !dynapix::stages::folder_writable(dir) {
-            bail!(
-                "{} is read-only (or marked so); `motion` writes its maps into the sequence \
-                 folder, so it leaves this one alone: copy the sequence to a writable place, \
-                 or use `dynapix run`, which caches its maps elsewhere",
-                dir.display()
-            );
-        }
-    }
-    Ok(())
-}
-
 /// Runs `dynapix motion`.
 pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
-    let started = Instant::now();
     let config = config(&args)?;
     let input = args.seq.open(&config)?;
-    let seq = &input.sequence;
-    refuse_read_only(&seq.dir, &seq.prob_dir)?;
-    let n = input.len();
-    let noise = match &args.pose_noise {
+    let pose_noise = match &args.pose_noise {
         None => None,
-        Some(v) if v.len() == 2 && v.iter().all(|x| *x >= 0.0) => Some((v[0], v[1])),
+        Some(v) if v.len() == 2 && v.iter().all(|x| *x >= 0.0) => Some((v[0], v[1], args.seed)),
         Some(v) => bail!("--pose-noise wants METRES,DEGREES, got {v:?}"),
     };
-
-    // Poses (frames without one are reported with the other input problems).
-    let stamps = input.timestamps();
-    let gap = config.motion.max_pose_gap;
-    let needs_poses = MapJob::needs_poses(&input, &config);
-    let (mut poses, missing) = if !needs_poses {
-        (FramePoses::unused(n), Vec::new())
-    } else {
-        dynapix::stages::poses_from_source(&config.motion.poses, seq, &stamps, gap, || {
-            let runner = OfflineRunner::new(&config, &input, motion_cache(&input))?;
-            Ok((0, runner.first_pass(bars)?.trajectory))
-        })?
+    let options = MotionOptions {
+        // The sequence's default cache (first pass, rigidity maps).
+        cache_dir: super::run::cache_for(&input, None, false),
+        force: args.force,
+        float_maps: args.float_maps,
+        pictures: args.pictures,
+        save_background: args.save_background,
+        eval_masks: args.eval_masks,
+        pose_noise,
     };
-    let poses_from = poses.origin.describe();
-
-    // Validate every frame before writing anything.
-    let mut problems =
-        MapJob::new(&input, &config, &poses).check_inputs(args.eval_masks, &missing, &poses_from);
-    if !problems.is_empty() {
-        let total = problems.len();
-        problems.truncate(30);
-        let more = if total > 30 {
-            format!("\n  … and {} more", total - 30)
-        } else {
-            String::new()
-        };
-        bail!(
-            "{total} problem(s) in {}:\n  {}{more}",
-            seq.dir.display(),
-            problems.join("\n  ")
-        );
-    }
-    if let Some((st, sr)) = noise {
-        poses.poses = dynapix_motion::noise::perturb_poses(&poses.poses, st, sr, args.seed);
-    }
-    let notes = json!({
-        "noise": noise.map(|(t, r)| json!({"rms_translation_m": t, "rms_rotation_deg": r, "seed": args.seed})),
-    });
+    let out = dynapix::motion_maps(&input, &config, &options, bars)?;
     if let Some(path) = &args.write_poses {
-        let traj = Trajectory::new(
-            stamps
-                .iter()
-                .zip(&poses.poses)
-                .map(|(t, p)| StampedPose::new(*t, *p))
-                .collect(),
-        );
-        traj.write_tum(path)?;
+        out.poses.write_tum(path)?;
     }
-    let rigidity =
-        OfflineRunner::new(&config, &input, motion_cache(&input))?.rigidity_maps(bars)?;
-    let job = MapJob {
-        pose_notes: notes,
-        ..MapJob::new(&input, &config, &poses)
-    }
-    .with_rigidity(rigidity);
-
-    // Configuration record; a resumed run must use the same one.
-    let folder = MapFolder::new(seq.prob_dir.clone());
-    let record = job.record();
-    if let Some(old) = folder.read_record()
-        && !args.force
-    {
-        let old = old?;
-        if !old.describes(&record) {
-            bail!(
-                "{} was written with other settings; use --force to recompute all frames",
-                folder.dir.join(dynapix::MotionRecord::FILE).display()
-            );
-        }
-    }
-    let vis_dir = seq.dir.join("prob_vis");
-    let bgrec_dir = seq.dir.join("background_rec");
-    if args.pictures {
-        std::fs::create_dir_all(&vis_dir)?;
-    }
-    let reconstructs = job.backgrounds.reconstructs();
-    if args.save_background && reconstructs {
-        std::fs::create_dir_all(&bgrec_dir)?;
-    }
-    folder.write_record(
-        &input,
-        &record,
-        dynapix::MapsStatus::Running,
-        serde_json::Value::Null,
-    )?;
-
-    let map_path = |i: usize| folder.map_path(&input, i);
-    let todo: Vec<usize> = (0..n)
-        .filter(|&i| args.force || !map_path(i).is_some_and(|p| p.exists()))
-        .collect();
-    let skipped: Vec<usize> = (0..n).filter(|i| todo.binary_search(i).is_err()).collect();
-    if !skipped.is_empty() {
-        tracing::info!("{} frame(s) already done, skipping", skipped.len());
-    }
-
-    let mut scores = MaskEvaluation::new();
-    let task = dynapix::ProgressEvent::Begin {
-        task: "motion maps",
-        total: todo.len() as u64,
-    };
-    use dynapix::Progress;
-    bars.event(task);
-    let stats = job.run(
-        &todo,
-        |m| -> Result<MaskEvaluation, dynapix_motion::BoxError> {
-            let i = m.index;
-            let name = input.map_name(i).ok_or("no file name")?;
-            let p = MotionProbability::new(m.p);
-            folder.write_map(&input, i, &p)?;
-            if args.float_maps {
-                dynapix_io::weights::write_prob_pfm(
-                    folder.dir.join(&name).with_extension("pfm"),
-                    p.as_image(),
-                )?;
-            }
-            if args.pictures {
-                let rgb = match &m.paper {
-                    Some(paper) => paper.images.rgb.clone(),
-                    None => input.load_rgbd(i)?.0,
-                };
-                dynapix_io::images::write_rgb(vis_dir.join(&name), &overlay(&rgb, p.as_image()))?;
-            }
-            if args.save_background
-                && reconstructs
-                && let Some(paper) = &m.paper
-            {
-                dynapix_io::images::write_rgb(bgrec_dir.join(&name), &paper.background.rgb)?;
-            }
-            let mut frame_scores = MaskEvaluation::new();
-            if args.eval_masks {
-                let f = &seq.frames[i];
-                let mask_path = f.mask.as_ref().ok_or("no mask")?;
-                let mask = dynapix_io::images::read_mask(mask_path)?;
-                frame_scores.add_map(p.as_image().as_raw(), mask.as_raw());
-                if reconstructs
-                    && let Some(bg) = &f.background
-                    && let Some(paper) = &m.paper
-                {
-                    let truth = dynapix_io::images::read_rgb(bg)?;
-                    frame_scores.add_background(
-                        mask.as_raw(),
-                        &paper.background.rgb,
-                        &paper.images.rgb,
-                        &truth,
-                    );
-                }
-            }
-            Ok(frame_scores)
-        },
-        |_, frame_scores| {
-            scores.merge(&frame_scores);
-            bars.event(dynapix::ProgressEvent::Step {
-                task: "motion maps",
-                message: "",
-            });
-        },
-    );
-    bars.event(dynapix::ProgressEvent::End {
-        task: "motion maps",
-    });
-    let stats = stats?;
-    if args.eval_masks {
-        for &i in &skipped {
-            let p = map_path(i).context("no file name")?;
-            let p = dynapix_io::weights::read_prob_png(p)?;
-            let mask_path = seq.frames[i].mask.as_ref().context("no mask")?;
-            let mask = dynapix_io::images::read_mask(mask_path)?;
-            scores.add_map(p.as_raw(), mask.as_raw());
-        }
-    }
-    let wall = started.elapsed().as_secs_f64();
-    let ms_per_frame = if todo.is_empty() {
-        0.0
-    } else {
-        1000.0 * stats.compute_seconds / todo.len() as f64
-    };
-    let mut results = json!({
-        "frames_computed": todo.len(),
-        "frames_skipped": skipped.len(),
-        "wall_seconds": wall,
-        "compute_seconds": stats.compute_seconds,
-        "ms_per_frame": ms_per_frame,
-        "threads": rayon::current_num_threads(),
-    });
     println!(
         "motion: {} frame(s) computed, {} skipped, {:.1} s ({:.0} ms/frame on {} threads) → {}",
-        todo.len(),
-        skipped.len(),
-        wall,
-        ms_per_frame,
-        rayon::current_num_threads(),
-        folder.dir.display()
+        out.frames_computed,
+        out.frames_skipped,
+        out.wall_seconds,
+        out.ms_per_frame,
+        out.threads,
+        out.dir.display()
     );
-    if args.eval_masks {
-        let e = scores.scores();
+    if let Some(e) = &out.eval {
         let f4 = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.4}"));
         println!(
             "eval: ROC-AUC {} IoU(P>0.5) {} best IoU {} over {} moving / {} other pixels",
@@ -431,16 +222,6 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 "eval: reconstructed background PSNR inside moving movers {b:.2} dB (frame itself: {r:.2} dB)"
             );
         }
-        results["eval"] = serde_json::to_value(e)?;
     }
-    folder.write_record(&input, &record, dynapix::MapsStatus::Complete, results)?;
     Ok(())
-}
-
-/// The runner options of `motion`: the sequence's default cache (first pass, rigidity maps).
-fn motion_cache(input: &dynapix::Input) -> RunOptions {
-    RunOptions {
-        cache_dir: super::run::cache_for(input, None, false),
-        ..RunOptions::default()
-    }
 }

@@ -6,16 +6,16 @@
 //!
 //! Without `--oracle-poses` nothing at run time uses ground truth: the poses for splatting come
 //! from the system's own ORB-SLAM2 first pass, the background from `background/` when present,
-//! else it is reconstructed. A sequence's own `prob/` is used when present, and `run.json`
-//! says what made it (its `motion.json`). `run.json` records the whole configuration and the
+//! else it is reconstructed. A sequence's own `prob/` is used when present, and `run.json` says
+//! what made it (its `motion.json`). `run.json` records the whole configuration and the
 //! provenance of every input.
 //!
-//! Outputs in `--out`: `trajectory.txt` (TUM, tracked frames, camera-to-world),
-//! `status.txt`, `keyframes.txt`, `loops.txt`, `run.json`, and with ground truth `eval.json`
-//! and plots. With `--runs N > 1`, run k (seed + k) goes to `run_<k>/` and `trajectory.txt`
-//! is run 0's. The result set is written beside `--out` and replaces it as a whole at the end
-//! (`dynapix_io::output`), also when the run stops at a frame it cannot read: then with what
-//! it had computed and `"complete": false` in `run.json` (`--skip-bad-frames` skips such
+//! Outputs in `--out`: `trajectory.txt` (TUM, tracked frames, camera-to-world), `status.txt`,
+//! `keyframes.txt`, `loops.txt`, `run.json`, and with ground truth `eval.json` and plots. With
+//! `--runs N > 1`, run k (seed + k) goes to `run_<k>/` and `trajectory.txt` is run 0's. The
+//! result set is written beside `--out` and replaces it as a whole at the end
+//! ([`dynapix::OutputFolder`]), also when the run stops at a frame it cannot read: then with
+//! what it had computed and `"complete": false` in `run.json` (`--skip-bad-frames` skips such
 //! frames instead and lists them).
 
 use std::path::{Path, PathBuf};
@@ -24,9 +24,9 @@ use anyhow::{Context, bail};
 use dynapix::evaluate::{RunEvaluation, score_run};
 use dynapix::{
     Config, Cue, Cues, FirstPass, FlowPreset, FrameStatus, Input, Method, Mode, OfflineRunner,
-    OnlineRun, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus, Trajectory,
+    OnlineRun, OutputFolder, PoseSource, ProbUpdate, RunOptions, RunRecord, StampedStatus,
+    Trajectory,
 };
-use dynapix_io::OutputFolder;
 use serde_json::{Value, json};
 
 use super::common::{
@@ -510,11 +510,7 @@ fn write_online_poses(
     dir: &Path,
     run: &OnlineRun,
 ) -> anyhow::Result<(Trajectory, Vec<StampedStatus>)> {
-    let reported = run.reported();
-    reported.write_tum(dir.join("trajectory.txt"))?;
-    let status = run.status();
-    dynapix_io::trajectory::write_status(dir.join("status.txt"), &status)?;
-    Ok((reported, status))
+    Ok(run.write_poses(dir)?)
 }
 
 /// The online run of [`execute_online`] into the folder `dir`.

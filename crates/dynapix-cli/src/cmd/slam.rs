@@ -2,24 +2,21 @@
 //! sequence folder and writes `trajectory.txt` (TUM, every tracked frame, camera-to-world),
 //! `status.txt` (per frame: tracked / lost / not_initialized), `keyframes.txt`, `loops.txt`,
 //! `timing.csv` and `slam.json` (the sequence, the configuration, the counters, the skipped
-//! frames and whether the run completed) into `--out`, which is replaced as a whole at the
-//! end (written beside it first; see `dynapix_io::output`). `--save-map FILE` saves the final map
-//! (`dynapix_slam::persist` format); `--localize MAP` loads one and only tracks against it
-//! (localisation mode: no new keyframes or map points). The work is the library's
-//! (`dynapix::slam`); this module parses, shows progress and writes files.
+//! frames and whether the run completed) into `--out`, which is replaced as a whole at the end
+//! (written beside it first; see [`dynapix::OutputFolder`]). `--save-map FILE` saves the final
+//! map (a versioned header with CRC-32, then the map); `--localize MAP` loads one and only
+//! tracks against it (localisation mode: no new keyframes or map points). The work and the
+//! files are the library's ([`dynapix::SlamPass`], [`dynapix::SlamRecord`]); this module
+//! parses, shows progress and prints.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use dynapix::PassOutput;
-use dynapix::stages::{PassWeights, SlamSession, Watch, load_vocabulary, run_pass_observed};
-use dynapix::{Input, Method, VocabularyChoice};
-use dynapix_io::OutputFolder;
-use serde_json::json;
+use dynapix::VocabularyChoice;
+use dynapix::{MapFileStats, Method, OutputFolder, PassOutput, SlamPass, SlamRecord};
 
 use super::common::{
-    Bars, RESULT_MARKERS, SequenceArgs, check_out, incomplete, merge, partial_pass, report,
-    skipped_note, write_json, write_pass,
+    Bars, RESULT_MARKERS, SequenceArgs, check_out, partial_pass, report, skipped_note, stop_reason,
 };
 
 /// `--mode`: the paper/reference switch of every command; `orbslam2` is the older spelling
@@ -93,42 +90,50 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[i.min(v.len() - 1)]
 }
 
-/// Loads the map file `path` into the session (localisation mode, [`SlamSession::load_map`])
-/// and returns the summary line "localisation mode, map MAP (N keyframes, M points)".
-fn enter_localization(
-    session: &mut SlamSession,
-    path: &Path,
-    input: &Input,
-) -> anyhow::Result<String> {
-    let l = session.load_map(path, input.camera.settings.depth_map_factor)?;
+/// "read 1.0, decode + check 2.0, rebuild 3.0": the steps of a map load or save.
+fn steps(m: &MapFileStats) -> String {
+    let parts: Vec<String> = m
+        .steps_ms
+        .iter()
+        .map(|(name, ms)| format!("{name} {ms:.1}"))
+        .collect();
+    parts.join(", ")
+}
+
+/// Loads the map file `path` (localisation mode, [`SlamPass::load_map`]) and returns the
+/// summary line "localisation mode, map MAP (N keyframes, M points)".
+fn enter_localization(slam: &mut SlamPass, path: &Path) -> anyhow::Result<String> {
+    let l = slam.load_map(path)?;
     let note = format!(
         "localisation mode, map {} ({} keyframes, {} points)",
         path.display(),
         l.keyframes,
         l.points
     );
+    let total: f64 = l.steps_ms.iter().map(|(_, ms)| ms).sum();
     eprintln!(
-        "{note}: loaded in {:.1} ms (read {:.1}, decode + check {:.1}, rebuild {:.1}; {} bytes)",
-        l.read_ms + l.check_ms + l.rebuild_ms,
-        l.read_ms,
-        l.check_ms,
-        l.rebuild_ms,
+        "{note}: loaded in {total:.1} ms ({}; {} bytes)",
+        steps(&l),
         l.bytes
     );
     Ok(note)
 }
 
-/// Saves the map of the session to `path` ([`SlamSession::save_map`]).
-fn save_map(path: &Path, session: &SlamSession, depth_factor: f64) -> anyhow::Result<()> {
-    let s = session.save_map(path, depth_factor)?;
+/// Saves the map to `path` ([`SlamPass::save_map`]).
+fn save_map(path: &Path, slam: &SlamPass) -> anyhow::Result<()> {
+    let s = slam.save_map(path)?;
+    let ms: Vec<String> = s
+        .steps_ms
+        .iter()
+        .map(|(name, ms)| format!("{name} {ms:.1} ms"))
+        .collect();
     eprintln!(
-        "map saved to {} ({} keyframes, {} points, {:.2} MB; encode {:.1} ms, write {:.1} ms)",
+        "map saved to {} ({} keyframes, {} points, {:.2} MB; {})",
         path.display(),
         s.keyframes,
         s.points,
         s.bytes as f64 / 1e6,
-        s.encode_ms,
-        s.write_ms
+        ms.join(", ")
     );
     Ok(())
 }
@@ -136,23 +141,8 @@ fn save_map(path: &Path, session: &SlamSession, depth_factor: f64) -> anyhow::Re
 /// Writes the files of a pass into `dir`: trajectory, status, keyframes, loops and the
 /// per-frame step times (`timing.csv`).
 fn write_outputs(dir: &Path, pass: &PassOutput) -> anyhow::Result<()> {
-    write_pass(dir, pass)?;
-    let mut timing =
-        String::from("index,timestamp,extract_ms,track_ms,mapping_ms,loop_ms,keyframe,state\n");
-    for f in &pass.timings {
-        timing.push_str(&format!(
-            "{},{:.6},{:.3},{:.3},{:.3},{:.3},{},{}\n",
-            f.index,
-            f.timestamp,
-            f.extract_ms,
-            f.track_ms,
-            f.mapping_ms,
-            f.loop_ms,
-            u8::from(f.keyframe),
-            f.status
-        ));
-    }
-    dynapix_io::write_atomic(dir.join("timing.csv"), timing.as_bytes())?;
+    pass.write_files(dir)?;
+    pass.write_timing(&dir.join("timing.csv"))?;
     Ok(())
 }
 
@@ -209,14 +199,13 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     check_out(&args.out, &keep)?;
     if let Some(p) = &args.save_map {
         let dir = p.parent().unwrap_or(Path::new(""));
-        dynapix_io::output::check_writable_dir(dir)
+        OutputFolder::check_writable(dir)
             .with_context(|| format!("cannot save the map to {}", p.display()))?;
     }
     let input = args.seq.open(&config)?;
-    let vocabulary = load_vocabulary(&config.slam.vocabulary)?;
-    let mut session = SlamSession::new(&input.camera, config.system_params(), vocabulary)?;
+    let mut slam = SlamPass::new(&input, &config)?;
     let localize_note = match &args.localize {
-        Some(path) => enter_localization(&mut session, path, &input)?,
+        Some(path) => enter_localization(&mut slam, path)?,
         None => String::new(),
     };
     let viz = args
@@ -224,31 +213,15 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         .open(&format!("slam {}", args.seq.seq_dir.display()))?;
     let staged = OutputFolder::begin(&args.out, RESULT_MARKERS)?;
     let observer = viz.as_ref().map(super::viz::Viz::observer);
-    let watch = observer.as_deref().map(|o| Watch {
-        observer: o,
-        number: 1,
-    });
-    let result = run_pass_observed(
-        &input,
-        &mut session,
-        PassWeights::None,
-        None,
-        "slam",
-        bars,
-        watch,
-    );
+    let result = slam.run(&input, bars, observer.as_deref());
     if let Some(v) = viz {
         v.finish()?;
     }
-    let mut record = json!({
-        "command": "slam",
-        "method": Method::Orbslam2.name(),
-        "sequence": input.record(),
-        "localize": args.localize,
-        "save_map": args.save_map,
-        "config": config.to_json_value(),
-    });
+    let mut record = SlamRecord::new(&input, &config);
+    record.localize = args.localize.clone();
+    record.save_map = args.save_map.clone();
     let skipping = config.sequence.skip_bad_frames;
+    let record_path = staged.path().join("slam.json");
     let pass = match result {
         Ok(pass) => pass,
         Err(e) => {
@@ -258,11 +231,11 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
                 if let Err(w) = write_outputs(staged.path(), p) {
                     tracing::warn!("partial results: {}", report(&w));
                 }
-                record["stats"] = json!(p.stats);
-                record["skipped_frames"] = json!(p.skipped);
+                record.set_pass(p, false);
             }
-            merge(&mut record, incomplete(&e));
-            write_json(&staged.path().join("slam.json"), &record)?;
+            let (why, frame) = stop_reason(&e);
+            record.mark_incomplete(why, frame);
+            record.write(&record_path)?;
             let out = staged.commit()?;
             eprintln!(
                 "the run stopped; {} keeps what it computed (marked incomplete)",
@@ -272,17 +245,15 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
         }
     };
     write_outputs(staged.path(), &pass)?;
-    record["complete"] = json!(true);
-    record["stats"] = json!(pass.stats);
-    record["skipped_frames"] = json!(pass.skipped);
-    write_json(&staged.path().join("slam.json"), &record)?;
+    record.set_pass(&pass, true);
+    record.write(&record_path)?;
     staged.commit()?;
     eprintln!("{}", summary(&pass, skipping));
     if !localize_note.is_empty() {
         eprintln!("{localize_note}");
     }
     if let Some(path) = &args.save_map {
-        save_map(path, &session, input.camera.settings.depth_map_factor)?;
+        save_map(path, &slam)?;
     }
     super::common::check_tracked(&args.seq.seq_dir, pass.stats.tracked, args.allow_untracked)
 }

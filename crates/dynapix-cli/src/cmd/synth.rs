@@ -178,7 +178,7 @@ pub fn run(args: Args, bars: &super::common::Bars) -> anyhow::Result<()> {
     if let Some(path) = &args.preview {
         let sheet = preview::contact_sheet(&p, &Preset::ALL, &[0.0, 2.0, 4.0], 200)?;
         let bytes = output::rgb_png(path, &sheet)?;
-        dynapix_io::write_atomic(path, &bytes)?;
+        super::common::write_bytes(path, &bytes)?;
         eprintln!("contact sheet written to {}", path.display());
     }
     if let Some(dir) = &args.out {

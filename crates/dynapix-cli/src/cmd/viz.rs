@@ -47,7 +47,7 @@ fn open(args: &VizArgs, name: &str) -> anyhow::Result<Viz> {
         Some(path) => {
             let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
             if let Some(dir) = dir {
-                dynapix_io::output::check_writable_dir(dir).map_err(|e| {
+                dynapix::OutputFolder::check_writable(dir).map_err(|e| {
                     anyhow::anyhow!("cannot write {}: {}", path.display(), e.reason())
                 })?;
             }
