@@ -257,6 +257,15 @@ pub struct MotionConfig {
     pub static_depth: StaticDepthParams,
     /// The pose-free rigidity cue (and the rigidity-weighted first pass).
     pub rigidity: RigidityParams,
+    /// The rigidity cue of the maps of weighted pass k ≥ 1 chooses each frame pair's motion
+    /// with the relative pose of the two frames in the previous pass's trajectory as a prior
+    /// (issue 33, crowds that fill the view): the dominant motion is kept unchanged when it
+    /// agrees with the fit seeded by the prior, else (movers dominate, or no motion does)
+    /// the seeded fit gives the residual ([`dynapix_motion::PriorChoice`]). The first pass,
+    /// which has no poses yet, and runs with fixed poses (ground truth, a file) keep the
+    /// pose-free maps. On in paper mode (to be measured); off: every pass uses the
+    /// pose-free maps (the behaviour before).
+    pub rigidity_pose_prior: bool,
 }
 
 /// The cues of the motion probability. Each is a switch, a line in `motion.json` and an
@@ -548,6 +557,7 @@ impl Config {
                 cues: Cues::for_mode(mode),
                 static_depth: StaticDepthParams::default(),
                 rigidity: RigidityParams::default(),
+                rigidity_pose_prior: mode == Mode::Paper,
             },
             slam: SlamConfig {
                 params: Self::slam_defaults(mode),
