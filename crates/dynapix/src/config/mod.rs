@@ -264,9 +264,10 @@ pub struct MotionConfig {
     /// the seeded fit gives the residual ([`dynapix_motion::PriorChoice`]). The first pass,
     /// which has no poses yet, and runs with fixed poses (ground truth, a file) keep the
     /// pose-free maps. Off (the default in both modes, decided by the first measurements:
-    /// on the Bonn window it took the ATE from 0.0156 to 0.0185 m, on `crowd` 320×240 s0
-    /// from 0.0382 to 0.0208 m but the tracking rate from 1.00 to 0.92; BENCHMARKS.md, "Hard
-    /// scenes: the rigidity cue with a pose prior"): every pass uses the pose-free maps.
+    /// it took `crowd` 640×480 to a median of 0.0042 m over seeds 0–2, but the Bonn window
+    /// from 0.0156 to 0.0185 m, person_tracking s0 from 0.0052 to 0.0069 m and the tracking
+    /// rate of `crowd` 320×240 s0 to 0.92; BENCHMARKS.md, "Hard scenes: the rigidity cue
+    /// with a pose prior"): every pass uses the pose-free maps.
     pub rigidity_pose_prior: bool,
 }
 
