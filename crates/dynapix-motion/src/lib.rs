@@ -50,9 +50,9 @@ pub use combine::noisy_or;
 pub use moving::{FrameImages, MovingParams, Neighbour, moving_term};
 pub use pipeline::{MotionMaps, MotionParams, motion_probability};
 pub use rigidity::{
-    Correspondences, PairResiduals, RigidFit, RigidFitError, RigidFrame, RigidityMaps,
-    RigidityParams, pair_residuals, reverse_flow, rigidity_from_pairs, rigidity_probability,
-    rigidity_probability_with,
+    Correspondences, PairResiduals, PriorChoice, RigidFit, RigidFitError, RigidFrame, RigidityMaps,
+    RigidityParams, pair_residuals, pair_residuals_with_prior, reverse_flow, rigidity_from_pairs,
+    rigidity_probability, rigidity_probability_with, rigidity_probability_with_priors,
 };
 pub use sequence::{
     Backgrounds, BoxError, FrameLoader, FrameMotion, RgbdImages, SequenceError, SequenceMotion,

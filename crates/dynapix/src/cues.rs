@@ -19,7 +19,7 @@ use dynapix_io::MotionProbability;
 use dynapix_motion::moving::to_gray;
 use dynapix_motion::static_depth::{WorkingDepth, geometric_frame, select_views};
 use dynapix_motion::{
-    FloatImage, PairResiduals, RigidFit, RigidFitError, RigidFrame, RigidityParams,
+    FloatImage, PairResiduals, PriorChoice, RigidFit, RigidFitError, RigidFrame, RigidityParams,
     StaticDepthParams,
 };
 use image::GrayImage;
@@ -42,6 +42,10 @@ pub struct RigidityJob<'a> {
     pub input: &'a Input,
     /// The cue's parameters (offsets, flow preset, noise model, RANSAC).
     pub params: RigidityParams,
+    /// Camera-to-world poses of every frame (a previous pass's trajectory) whose relative
+    /// poses are the priors of the pairs' motions ([`dynapix_motion::pair_residuals_with_prior`]);
+    /// `None`: the pose-free cue.
+    pub priors: Option<&'a FramePoses>,
 }
 
 /// Counters of the rigidity fits of a run: pairs (frame, neighbour) by outcome.
@@ -53,6 +57,15 @@ pub struct RigidityStats {
     pub pairs_ambiguous: usize,
     /// Pairs without a fit (too few correspondences, degenerate).
     pub pairs_failed: usize,
+    /// With a pose prior: pairs whose dominant motion agreed with it (kept unchanged).
+    pub prior_agrees: usize,
+    /// With a pose prior: pairs whose dominant motion disagreed with it (the fit seeded by
+    /// the prior was used).
+    pub prior_disagrees: usize,
+    /// With a pose prior: ambiguous pairs that the fit seeded by the prior made usable.
+    pub prior_ambiguous: usize,
+    /// With a pose prior: pairs whose prior had too few inliers (pose-free outcome kept).
+    pub prior_unsupported: usize,
 }
 
 impl RigidityStats {
@@ -69,10 +82,28 @@ impl RigidityStats {
         stats
     }
 
+    /// Counts the prior choices of a frame's pairs.
+    fn with_choices(mut self, choices: impl IntoIterator<Item = PriorChoice>) -> Self {
+        for c in choices {
+            match c {
+                PriorChoice::Agrees => self.prior_agrees += 1,
+                PriorChoice::Disagrees => self.prior_disagrees += 1,
+                PriorChoice::Ambiguous => self.prior_ambiguous += 1,
+                PriorChoice::Unsupported => self.prior_unsupported += 1,
+                PriorChoice::NoPrior | PriorChoice::Failed => {}
+            }
+        }
+        self
+    }
+
     fn add(&mut self, o: RigidityStats) {
         self.pairs_used += o.pairs_used;
         self.pairs_ambiguous += o.pairs_ambiguous;
         self.pairs_failed += o.pairs_failed;
+        self.prior_agrees += o.prior_agrees;
+        self.prior_disagrees += o.prior_disagrees;
+        self.prior_ambiguous += o.prior_ambiguous;
+        self.prior_unsupported += o.prior_unsupported;
     }
 }
 
@@ -80,9 +111,25 @@ impl RigidityStats {
 type GrayDepth = Arc<(GrayImage, FloatImage)>;
 
 impl<'a> RigidityJob<'a> {
-    /// The job of `params` on `input`.
+    /// The job of `params` on `input` (pose-free).
     pub fn new(input: &'a Input, params: RigidityParams) -> Self {
-        Self { input, params }
+        Self {
+            input,
+            params,
+            priors: None,
+        }
+    }
+
+    /// This job with the pose priors of `poses` (one camera-to-world pose per frame).
+    pub fn with_priors(mut self, poses: &'a FramePoses) -> Self {
+        self.priors = Some(poses);
+        self
+    }
+
+    /// The prior of the motion a → b (camera-a points into camera b), `T_wb⁻¹ · T_wa`.
+    fn prior(&self, a: usize, b: usize) -> Option<Se3> {
+        let p = &self.priors?.poses;
+        Some(p.get(b)?.inverse() * p.get(a)?)
     }
 
     /// The `config` document of the maps' `motion.json`: everything that determines them.
@@ -97,7 +144,14 @@ impl<'a> RigidityJob<'a> {
             "camera": self.input.camera.pinhole(),
             "depth_factor": seq.depth_factor,
             "depth_validity": seq.depth_validity,
-            "poses": "none (pose-free cue)",
+            "poses": match self.priors {
+                None => json!("none (pose-free cue)"),
+                Some(p) => json!({
+                    "use": "prior of each pair's motion",
+                    "origin": p.origin,
+                    "hash": p.content_hash(),
+                }),
+            },
             "params": self.params,
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
         });
@@ -153,15 +207,25 @@ impl<'a> RigidityJob<'a> {
                 let ga = get_loaded(loaded, a)?;
                 let gb = get_loaded(loaded, b)?;
                 let backward = self.neighbours(b).iter().any(|&(_, j)| j == a);
-                let pair = dynapix_motion::pair_residuals(
+                let prior = self.prior(a, b);
+                let pair = dynapix_motion::pair_residuals_with_prior(
                     &rigid_frame(ga, 0),
                     &rigid_frame(gb, b as i64 - a as i64),
                     cam,
                     flow,
                     &self.params,
                     backward,
+                    prior.as_ref(),
                 )
                 .map_err(|e| Error::Input(format!("frames {a} and {b}: rigidity: {e}")))?;
+                if !matches!(pair.choice, PriorChoice::NoPrior | PriorChoice::Agrees) {
+                    let inliers = pair.fit.as_ref().map_or(0, |f| f.inliers);
+                    tracing::debug!(
+                        target: "dynapix::rigidity",
+                        "pair {a}-{b}: {:?} ({inliers} inliers)",
+                        pair.choice
+                    );
+                }
                 Ok(((a, b), pair))
             })
             .collect();
@@ -178,11 +242,13 @@ impl<'a> RigidityJob<'a> {
         cam: &PinholeCamera,
     ) -> Result<(FloatImage, RigidityStats)> {
         let mut per = Vec::new();
+        let mut choices = Vec::new();
         for (o, j) in self.neighbours(i) {
             let key = (i.min(j), i.max(j));
             let pair = pairs
                 .get(&key)
                 .ok_or_else(|| Error::Input(format!("rigidity: pair {key:?} not computed")))?;
+            choices.push(pair.choice);
             // The residual images are borrowed, not copied.
             per.push(if j > i {
                 (o, pair.fit.clone(), pair.forward.as_ref())
@@ -192,7 +258,7 @@ impl<'a> RigidityJob<'a> {
         }
         let maps = dynapix_motion::rigidity_from_pairs(per, (cam.width, cam.height), &self.params)
             .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
-        Ok((maps.p, RigidityStats::of(&maps.fits)))
+        Ok((maps.p, RigidityStats::of(&maps.fits).with_choices(choices)))
     }
 
     /// P of frame `i` with the frames in `loaded` (which must hold `i` and its neighbours),
@@ -211,9 +277,21 @@ impl<'a> RigidityJob<'a> {
             .map(|(o, j)| Ok((o, get_loaded(loaded, j)?.clone())))
             .collect::<Result<_>>()?;
         let frames: Vec<RigidFrame<'_>> = nbs.iter().map(|(o, g)| rigid_frame(g, *o)).collect();
+        let priors: Vec<Option<Se3>> = self
+            .neighbours(i)
+            .into_iter()
+            .map(|(_, j)| self.prior(i, j))
+            .collect();
         let me = rigid_frame(cur, 0);
-        let maps = dynapix_motion::rigidity_probability_with(&me, &frames, cam, flow, &self.params)
-            .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
+        let maps = dynapix_motion::rigidity_probability_with_priors(
+            &me,
+            &frames,
+            &priors,
+            cam,
+            flow,
+            &self.params,
+        )
+        .map_err(|e| Error::Input(format!("frame {i}: rigidity: {e}")))?;
         Ok((maps.p, RigidityStats::of(&maps.fits)))
     }
 

@@ -125,9 +125,12 @@ pub struct MapJob<'a> {
     pub static_depth: StaticDepthParams,
     /// Parameters of the rigidity cue.
     pub rigidity_params: RigidityParams,
-    /// Precomputed rigidity maps of the sequence (made with `rigidity_params`); without them
-    /// the rigidity cue is computed frame by frame.
+    /// Precomputed rigidity maps of the sequence (made with [`MapJob::rigidity_job`]);
+    /// without them the rigidity cue is computed frame by frame.
     pub rigidity: Option<MapSet>,
+    /// The rigidity cue takes the relative poses of `poses` as priors of the pairs' motions
+    /// (`motion.rigidity_pose_prior`, for poses from a pass of the run only).
+    pub rigidity_pose_prior: bool,
 }
 
 /// What the per-frame consumer of [`MapJob::run`] gets.
@@ -170,6 +173,19 @@ impl<'a> MapJob<'a> {
             static_depth: config.motion.static_depth.clone(),
             rigidity_params: config.motion.rigidity.clone(),
             rigidity: None,
+            rigidity_pose_prior: config.motion.rigidity_pose_prior
+                && matches!(poses.origin, crate::poses::PoseOrigin::Pass { .. }),
+        }
+    }
+
+    /// The rigidity job of these maps: pose-free, or with the priors of `poses`
+    /// ([`MapJob::rigidity_pose_prior`]).
+    pub fn rigidity_job(&self) -> RigidityJob<'a> {
+        let job = RigidityJob::new(self.input, self.rigidity_params.clone());
+        if self.rigidity_pose_prior {
+            job.with_priors(self.poses)
+        } else {
+            job
         }
     }
 
@@ -242,9 +258,7 @@ impl<'a> MapJob<'a> {
                 "combine": "noisy-or: P = 1 - prod(1 - P_cue)",
                 "paper": self.cues.paper,
                 "geometric": self.cues.geometric.then_some(&self.static_depth),
-                "rigidity": self.cues.rigidity.then(|| {
-                    RigidityJob::new(self.input, self.rigidity_params.clone()).record()
-                }),
+                "rigidity": self.cues.rigidity.then(|| self.rigidity_job().record()),
             },
             "output": "uint16 trunc((1 - P) * 1000), 16-bit PNG named like the rgb image",
         });
@@ -355,7 +369,7 @@ impl<'a> MapJob<'a> {
                 &self.static_depth,
             )?),
         };
-        let rig_job = RigidityJob::new(self.input, self.rigidity_params.clone());
+        let rig_job = self.rigidity_job();
         let cam = self.input.camera.pinhole();
         // P of frame `i` from its paper terms (when that cue is on) and the other cues.
         let combined =

@@ -528,12 +528,21 @@ impl<'a> OfflineRunner<'a> {
     /// The maps of weighted pass `k` (1-based) with `poses`: the sequence's own `prob/` for
     /// the first pass when allowed, else from the cache or computed.
     fn maps_for(&self, k: usize, poses: &FramePoses, progress: &dyn Progress) -> Result<MapSet> {
-        let rigidity = if self.config.cues().rigidity {
-            self.rigidity_maps(progress)?
-        } else {
+        let job = MapJob::new(&self.input, self.config, poses);
+        let rigidity = if !self.config.cues().rigidity {
             None
+        } else if job.rigidity_pose_prior {
+            let label = format!("rigidity maps with pose priors (pass {k})");
+            Some(cached_rigidity(
+                &job.rigidity_job(),
+                self.cache_dir(),
+                &label,
+                progress,
+            )?)
+        } else {
+            self.rigidity_maps(progress)?
         };
-        let job = MapJob::new(&self.input, self.config, poses).with_rigidity(rigidity);
+        let job = job.with_rigidity(rigidity);
         let label = format!("motion maps (pass {k})");
         cached_maps(&job, self.cache_dir(), &label, progress)
     }

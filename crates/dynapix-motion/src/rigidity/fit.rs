@@ -21,7 +21,7 @@ fn kabsch(source: &[Point3<f64>], target: &[Point3<f64>]) -> Option<Se3> {
 
 /// A correspondence's target in the form the residual needs.
 #[derive(Clone, Copy)]
-struct Target {
+pub(super) struct Target {
     bn: [f64; 2],
     bz: f64,
 }
@@ -125,6 +125,48 @@ fn count_inliers(
         .count()
 }
 
+/// The targets of `corr` in the form the residual needs.
+pub(super) fn targets_of(corr: &Correspondences) -> Vec<Target> {
+    corr.target
+        .iter()
+        .map(|b| Target {
+            bn: [b.x / b.z, b.y / b.z],
+            bz: b.z,
+        })
+        .collect()
+}
+
+/// `rounds` rounds of Kabsch on the inliers of `motion` (stops when fewer than 3 remain).
+pub(super) fn refine(
+    mut motion: Se3,
+    corr: &Correspondences,
+    targets: &[Target],
+    model: &Model,
+    params: &RigidityParams,
+) -> Se3 {
+    for _ in 0..params.refine_rounds {
+        let (a, b) = inlier_pairs(&motion, corr, targets, model, params.chi2);
+        match kabsch(&a, &b) {
+            Some(m) => motion = m,
+            // Fewer than 3 inliers: keep the motion that has them.
+            None => break,
+        }
+    }
+    motion
+}
+
+/// The number of correspondences of `corr` that are inliers of `motion`.
+pub(super) fn inliers_of(
+    motion: &Se3,
+    corr: &Correspondences,
+    targets: &[Target],
+    model: &Model,
+    chi2: f64,
+) -> usize {
+    let columns = Columns::new(&corr.source, targets, model);
+    count_inliers_soa(motion, &columns, model, chi2)
+}
+
 fn inlier_pairs(
     motion: &Se3,
     corr: &Correspondences,
@@ -199,14 +241,7 @@ pub fn fit_rigid_motion(
         .into());
     }
     let model = Model::new(cam, params);
-    let targets: Vec<Target> = corr
-        .target
-        .iter()
-        .map(|b| Target {
-            bn: [b.x / b.z, b.y / b.z],
-            bz: b.z,
-        })
-        .collect();
+    let targets = targets_of(corr);
 
     let columns = Columns::new(&corr.source, &targets, &model);
     // Samples are drawn in sequence from the seeded generator, in fixed batches; only the
@@ -255,20 +290,13 @@ pub fn fit_rigid_motion(
                 .min(params.ransac_iterations);
         }
     }
-    let Some((mut motion, _)) = best else {
+    let Some((motion, _)) = best else {
         return Err(RigidFitError::NoHypothesis {
             samples: params.ransac_iterations,
         }
         .into());
     };
-    for _ in 0..params.refine_rounds {
-        let (a, b) = inlier_pairs(&motion, corr, &targets, &model, params.chi2);
-        match kabsch(&a, &b) {
-            Some(m) => motion = m,
-            // Fewer than 3 inliers: keep the motion that has them.
-            None => break,
-        }
-    }
+    let motion = refine(motion, corr, &targets, &model, params);
     let inliers = count_inliers_soa(&motion, &columns, &model, params.chi2);
     Ok(RigidFit {
         motion,

@@ -36,6 +36,7 @@ mod fit;
 mod fixtures;
 mod pair;
 mod params;
+mod prior;
 mod probability;
 mod residual;
 mod reverse;
@@ -43,9 +44,11 @@ mod reverse;
 pub use fit::{RANSAC_BATCH, adaptive_samples, fit_rigid_motion};
 pub use pair::{correspondences, residual_squared};
 pub use params::{RigidityParams, finest_scale_at_working_width};
+pub use prior::{PriorChoice, choose_with_prior, fit_from_prior, motions_agree};
 pub use probability::{
-    PairResiduals, camera_rays, pair_residuals, rigidity_from_pairs, rigidity_from_residuals,
-    rigidity_probability, rigidity_probability_with,
+    PairResiduals, camera_rays, pair_residuals, pair_residuals_with_prior, rigidity_from_pairs,
+    rigidity_from_residuals, rigidity_probability, rigidity_probability_with,
+    rigidity_probability_with_priors,
 };
 pub use residual::dense_residual;
 pub use reverse::reverse_flow;

@@ -6,12 +6,13 @@ use std::borrow::Borrow;
 use std::sync::Arc;
 
 use dynapix_flow::FlowProvider;
-use dynapix_geometry::{PinholeCamera, PixelRays};
+use dynapix_geometry::{PinholeCamera, PixelRays, Se3};
 use rayon::prelude::*;
 
 use super::fit::fit_rigid_motion;
 use super::pair::correspondences;
 use super::params::{RigidityParams, invalid};
+use super::prior::{PriorChoice, choose_with_prior};
 use super::residual::dense_residual;
 use super::reverse::reverse_flow;
 use super::{RigidFit, RigidFitError, RigidFrame, RigidityMaps};
@@ -93,6 +94,20 @@ pub fn rigidity_probability_with(
     flow: &dyn FlowProvider,
     params: &RigidityParams,
 ) -> Result<RigidityMaps, MotionError> {
+    rigidity_probability_with_priors(cur, neighbours, &[], cam, flow, params)
+}
+
+/// [`rigidity_probability_with`] with a pose prior of the motion current → neighbour for
+/// each neighbour (`priors[k]` for `neighbours[k]`; a missing or `None` entry is no prior),
+/// see [`pair_residuals_with_prior`].
+pub fn rigidity_probability_with_priors(
+    cur: &RigidFrame<'_>,
+    neighbours: &[RigidFrame<'_>],
+    priors: &[Option<Se3>],
+    cam: &PinholeCamera,
+    flow: &dyn FlowProvider,
+    params: &RigidityParams,
+) -> Result<RigidityMaps, MotionError> {
     params.validate()?;
     let size = (cam.width, cam.height);
     check_size("grey image", size, cur.gray.dimensions())?;
@@ -103,7 +118,11 @@ pub fn rigidity_probability_with(
     }
     let per_neighbour: Vec<Result<PairResiduals, MotionError>> = neighbours
         .par_iter()
-        .map(|nb| pair_residuals(cur, nb, cam, flow, params, false))
+        .enumerate()
+        .map(|(k, nb)| {
+            let prior = priors.get(k).and_then(Option::as_ref);
+            pair_residuals_with_prior(cur, nb, cam, flow, params, false, prior)
+        })
         .collect();
     let mut pairs = Vec::with_capacity(neighbours.len());
     for (r, nb) in per_neighbour.into_iter().zip(neighbours) {
@@ -125,6 +144,8 @@ pub struct PairResiduals {
     /// The residual of b's pixels: [`dense_residual`] of b against a with [`reverse_flow`]
     /// under the inverse fit; `None` without a fit or when not asked for.
     pub backward: Option<FloatImage>,
+    /// How the motion was chosen ([`PriorChoice::NoPrior`] for the pose-free cue).
+    pub choice: PriorChoice,
 }
 
 impl PairResiduals {
@@ -149,6 +170,22 @@ pub fn pair_residuals(
     params: &RigidityParams,
     with_backward: bool,
 ) -> Result<PairResiduals, MotionError> {
+    pair_residuals_with_prior(a, b, cam, flow, params, with_backward, None)
+}
+
+/// [`pair_residuals`] with the pose prior `prior` of the motion a → b (camera-a points into
+/// camera b): the motion of the pair is chosen by [`choose_with_prior`] (the dominant motion
+/// when it agrees with the prior, else the fit seeded by the prior); `None` is
+/// [`pair_residuals`].
+pub fn pair_residuals_with_prior(
+    a: &RigidFrame<'_>,
+    b: &RigidFrame<'_>,
+    cam: &PinholeCamera,
+    flow: &dyn FlowProvider,
+    params: &RigidityParams,
+    with_backward: bool,
+    prior: Option<&Se3>,
+) -> Result<PairResiduals, MotionError> {
     let rays = camera_rays(cam);
     let f = {
         let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: flow").entered();
@@ -167,6 +204,7 @@ pub fn pair_residuals(
         Err(MotionError::RigidFit(e)) => Err(e),
         Err(e) => return Err(e),
     };
+    let (fit, choice) = choose_with_prior(fit, &corr, cam, params, prior)?;
     drop(fit_stage);
     let _stage = tracing::info_span!(target: "dynapix::stage", "rigidity: residual").entered();
     let Ok(good) = &fit else {
@@ -174,6 +212,7 @@ pub fn pair_residuals(
             fit,
             forward: None,
             backward: None,
+            choice,
         });
     };
     let forward = dense_residual(a.depth, b.depth, &f, &rays, &good.motion, params)?;
@@ -190,6 +229,7 @@ pub fn pair_residuals(
         fit,
         forward: Some(forward),
         backward,
+        choice,
     })
 }
 

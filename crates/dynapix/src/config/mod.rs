@@ -257,6 +257,18 @@ pub struct MotionConfig {
     pub static_depth: StaticDepthParams,
     /// The pose-free rigidity cue (and the rigidity-weighted first pass).
     pub rigidity: RigidityParams,
+    /// The rigidity cue of the maps of weighted pass k ≥ 1 chooses each frame pair's motion
+    /// with the relative pose of the two frames in the previous pass's trajectory as a prior
+    /// (issue 33, crowds that fill the view): the dominant motion is kept unchanged when it
+    /// agrees with the fit seeded by the prior, else (movers dominate, or no motion does)
+    /// the seeded fit gives the residual ([`dynapix_motion::PriorChoice`]). The first pass,
+    /// which has no poses yet, and runs with fixed poses (ground truth, a file) keep the
+    /// pose-free maps. Off (the default in both modes, decided by the first measurements:
+    /// it took `crowd` 640×480 to a median of 0.0042 m over seeds 0–2, but the Bonn window
+    /// from 0.0156 to 0.0185 m, person_tracking s0 from 0.0052 to 0.0069 m and the tracking
+    /// rate of `crowd` 320×240 s0 to 0.92; BENCHMARKS.md, "Hard scenes: the rigidity cue
+    /// with a pose prior"): every pass uses the pose-free maps.
+    pub rigidity_pose_prior: bool,
 }
 
 /// The cues of the motion probability. Each is a switch, a line in `motion.json` and an
@@ -548,6 +560,7 @@ impl Config {
                 cues: Cues::for_mode(mode),
                 static_depth: StaticDepthParams::default(),
                 rigidity: RigidityParams::default(),
+                rigidity_pose_prior: false,
             },
             slam: SlamConfig {
                 params: Self::slam_defaults(mode),
