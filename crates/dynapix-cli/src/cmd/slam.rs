@@ -227,6 +227,7 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     let watch = observer.as_deref().map(|o| Watch {
         observer: o,
         number: 1,
+        last: true,
     });
     let result = run_pass_observed(
         &input,
