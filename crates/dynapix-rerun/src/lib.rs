@@ -18,8 +18,7 @@
 //! trajectory is the result ([`dynapix::PassInfo::last`]); the earlier passes of an offline
 //! DynaPix run log everything else. [`RerunParams`] can log them in every pass, or every k-th
 //! frame only. Map points, removed points and trajectories are logged every few frames and
-//! at keyframes. This keeps a recorded 640×480 run within about 10 % of the run's time
-//! (BENCHMARKS.md).
+//! at keyframes. What a recording costs a 640×480 run is measured in BENCHMARKS.md.
 //!
 //! A layout (3D view, image with P and keypoints, depth, plots, events) is sent with the
 //! recording ([`layout`]).
