@@ -1,4 +1,4 @@
-//! `--rerun-save` on `run` and `slam` (issue 35), on a tiny generated sequence (synth
+//! `--rerun-save` on `run`, `slam` and `bench` (issue 35), on a tiny generated sequence (synth
 //! walking_xyz, 24 frames of 160×120). With the `viz` feature the recording is written and
 //! decodes back with the run's frames; without it the flags are refused with the command that
 //! builds them, before any work. Run in release mode (`cargo test --release`, and
@@ -69,7 +69,29 @@ fn run_and_slam_write_recordings_that_decode_back() {
         // Every pass logs its tracked poses; the final pass is the trajectory written.
         assert!(c.rows("world/camera") >= tracked, "{cmd}: {c:?}");
         assert!(c.rows("world/map/points") >= passes, "{cmd}: {c:?}");
+        // The images: in the last pass only.
+        assert_eq!(c.rows("depth"), FRAMES, "{cmd}");
     }
+    // `bench` logs the measured run the same way, every 2nd frame's images here.
+    let rrd = tmp.path().join("bench.rrd");
+    let o = bin()
+        .arg("bench")
+        .arg(&seq)
+        .args([
+            "--method",
+            "dynapix",
+            "--rerun-images-every",
+            "2",
+            "--rerun-save",
+        ])
+        .arg(&rrd)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "bench: {}", stderr(&o));
+    let c = dynapix_rerun::read::read_rrd(&rrd).unwrap();
+    assert_eq!(c.rows("depth"), FRAMES.div_ceil(2), "bench: {c:?}");
+    let passes = c.timelines.keys().filter(|t| t.starts_with("pass")).count();
+    assert_eq!(c.rows("world/camera/image/keypoints"), passes * FRAMES);
 }
 
 #[cfg(not(feature = "viz"))]

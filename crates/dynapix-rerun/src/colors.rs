@@ -1,4 +1,5 @@
-//! The colours of the recording: keypoints by use, map points by weight, P as an overlay.
+//! The colours of the recording: keypoints by use, map points by weight, P as an overlay
+//! (classes of P with their colours).
 
 use dynapix::KeypointUse;
 
@@ -35,15 +36,26 @@ pub fn weight(w: f32) -> [u8; 4] {
     [r, g, 40, 255]
 }
 
-/// Writes the RGBA overlay of the motion probability P = 1 − `w` into `out` (red, alpha
-/// growing with P, transparent where P = 0).
-pub fn overlay(weights: &[f32], out: &mut Vec<u8>) {
+/// Levels of the motion probability in the P overlay: class k ∈ 0..=`P_LEVELS` stands for
+/// P ≈ k / `P_LEVELS`.
+pub const P_LEVELS: u8 = 8;
+
+/// Writes the P overlay's class of every pixel of the static weights `weights` (P = 1 − w)
+/// into `out`: `round(P · P_LEVELS)`, one byte per pixel (a Rerun segmentation image).
+pub fn motion_classes(weights: &[f32], out: &mut Vec<u8>) {
     out.clear();
-    out.reserve(weights.len() * 4);
-    for &w in weights {
+    out.extend(weights.iter().map(|&w| {
         let p = (1.0 - w).clamp(0.0, 1.0);
-        out.extend_from_slice(&[255, 30, 30, (p * 200.0) as u8]);
-    }
+        (p * f32::from(P_LEVELS)).round() as u8
+    }));
+}
+
+/// The colour of P overlay class `k` (see [`motion_classes`]): transparent at P ≈ 0, then
+/// red with an opacity growing with P (at most 220 of 255, so the image stays visible).
+pub fn motion_class(k: u8) -> [u8; 4] {
+    let k = k.min(P_LEVELS);
+    let alpha = (220 * u32::from(k) / u32::from(P_LEVELS)) as u8;
+    [255, 30, 30, alpha]
 }
 
 #[cfg(test)]
@@ -57,8 +69,10 @@ mod tests {
         let mid = weight(0.5);
         assert_eq!((mid[0], mid[1]), (255, 220));
         let mut o = Vec::new();
-        overlay(&[1.0, 0.0, 0.5], &mut o);
-        assert_eq!(o.len(), 12);
-        assert_eq!((o[3], o[7], o[11]), (0, 200, 100));
+        motion_classes(&[1.0, 0.0, 0.5, 0.96, 1.5], &mut o);
+        assert_eq!(o, [0, P_LEVELS, P_LEVELS / 2, 0, 0]);
+        assert_eq!(motion_class(0)[3], 0, "P = 0 leaves the image as it is");
+        assert_eq!(motion_class(P_LEVELS), [255, 30, 30, 220]);
+        assert_eq!(motion_class(P_LEVELS / 2)[3], 110);
     }
 }

@@ -38,12 +38,16 @@ impl std::fmt::Display for Target {
 pub struct RerunParams {
     /// Log the colour image, P and depth of every n-th frame (1: all).
     pub images_every: usize,
+    /// Log the images in every pass; by default only in the run's last pass
+    /// ([`dynapix::PassInfo::last`]), the earlier passes log poses, trajectories, map,
+    /// keypoints, events and scalars.
+    pub images_in_all_passes: bool,
     /// JPEG quality of the colour images (1–100).
     pub jpeg_quality: u8,
     /// The depth image is logged at 1/`depth_downscale` of its size.
     pub depth_downscale: u32,
-    /// The trajectories, the ATE so far and the map points are logged every n-th frame (and
-    /// at every keyframe and at the end of a pass).
+    /// The trajectories, the ATE so far, the map points and the removed points are logged
+    /// every n-th frame (and at every keyframe and at the end of a pass).
     pub trajectory_every: usize,
 }
 
@@ -51,10 +55,18 @@ impl Default for RerunParams {
     fn default() -> Self {
         Self {
             images_every: 1,
+            images_in_all_passes: false,
             jpeg_quality: 80,
             depth_downscale: 2,
             trajectory_every: 5,
         }
+    }
+}
+
+impl RerunParams {
+    /// Whether `pass` logs images.
+    pub fn images_in(&self, pass: &PassInfo<'_>) -> bool {
+        pass.last || self.images_in_all_passes
     }
 }
 
@@ -68,8 +80,14 @@ struct PassState {
     ground_truth: Vec<(f64, Isometry3<f64>)>,
     /// Points removed as moving so far.
     removed: Vec<[f32; 3]>,
+    /// Points removed since `removed` was last logged.
+    removed_new: bool,
     /// Scratch buffer of the P overlay.
     overlay: Vec<u8>,
+    /// This pass logs images ([`RerunParams::images_in`]).
+    images: bool,
+    /// This pass is the run's last.
+    last: bool,
     /// Frames seen.
     frames: usize,
 }
@@ -155,8 +173,8 @@ impl RerunObserver {
         self.log(path, &rerun::Scalars::single(v));
     }
 
-    /// The trajectories, the ATE so far and the map.
-    fn log_trajectories(&self, st: &PassState, frame: Option<&FrameView<'_>>) {
+    /// The trajectories, the ATE so far, the map (with a frame) and the removed points.
+    fn log_trajectories(&self, st: &mut PassState, frame: Option<&FrameView<'_>>) {
         let strip = |poses: &[(f64, Isometry3<f64>)]| -> Vec<[f32; 3]> {
             poses.iter().map(|(_, p)| point(p)).collect()
         };
@@ -224,6 +242,15 @@ impl RerunObserver {
                     .with_radii([rerun::Radius::new_ui_points(4.0)]),
             );
         }
+        if st.removed_new {
+            self.log(
+                "world/map/removed",
+                &rerun::Points3D::new(st.removed.iter().copied())
+                    .with_colors([colors::REMOVED])
+                    .with_radii([rerun::Radius::new_ui_points(2.5)]),
+            );
+            st.removed_new = false;
+        }
     }
 
     /// The colour image, P overlay, keypoints and depth of a frame.
@@ -245,12 +272,21 @@ impl RerunObserver {
         }
         match f.weights {
             Some(w) => {
+                // Classes of P, coloured by the annotation context of the entity: one byte a
+                // pixel, and drawn by the viewer as a translucent layer over the image.
                 let img = w.as_image();
-                colors::overlay(img.as_raw(), &mut st.overlay);
+                colors::motion_classes(img.as_raw(), &mut st.overlay);
                 self.log(
                     "world/camera/image/motion",
-                    &rerun::Image::from_rgba32(st.overlay.clone(), [img.width(), img.height()])
-                        .with_draw_order(5.0),
+                    &rerun::SegmentationImage::new(
+                        std::mem::take(&mut st.overlay),
+                        rerun::components::ImageFormat::segmentation(
+                            [img.width(), img.height()],
+                            rerun::datatypes::ChannelDatatype::U8,
+                        ),
+                    )
+                    .with_opacity(0.8)
+                    .with_draw_order(5.0),
                 );
             }
             None => self.log("world/camera/image/motion", &rerun::Clear::flat()),
@@ -294,6 +330,8 @@ impl RunObserver for RerunObserver {
             let mut st = self.state();
             *st = PassState {
                 timeline: timeline.clone(),
+                images: self.params.images_in(pass),
+                last: pass.last,
                 ground_truth: pass
                     .ground_truth
                     .map(|g| g.poses.iter().map(|p| (p.t, p.pose)).collect())
@@ -320,6 +358,24 @@ impl RunObserver for RerunObserver {
             )
             .with_principal_point([c.cx as f32, c.cy as f32])
             .with_image_plane_distance(0.25),
+        );
+        self.log_static(
+            "world/camera/image/motion",
+            &rerun::AnnotationContext::new(
+                (0..=colors::P_LEVELS)
+                    .map(|k| {
+                        let [r, g, b, a] = colors::motion_class(k);
+                        let label =
+                            format!("P ≈ {:.2}", f32::from(k) / f32::from(colors::P_LEVELS));
+                        (
+                            u16::from(k),
+                            label.as_str(),
+                            rerun::Rgba32::from_unmultiplied_rgba(r, g, b, a),
+                        )
+                            .into()
+                    })
+                    .collect::<Vec<rerun::datatypes::ClassDescriptionMapElem>>(),
+            ),
         );
         // The previous pass's time must not stick to this pass's rows.
         self.rec.reset_time();
@@ -360,7 +416,7 @@ impl RunObserver for RerunObserver {
             );
         }
         let every = |n: usize| n <= 1 || f.index.is_multiple_of(n);
-        if every(self.params.images_every) {
+        if st.images && every(self.params.images_every) {
             self.log_images(&mut st, f);
         }
         let (pos, col): (Vec<[f32; 2]>, Vec<[u8; 4]>) = f
@@ -374,16 +430,12 @@ impl RunObserver for RerunObserver {
                 .with_radii([rerun::Radius::new_ui_points(3.0)])
                 .with_draw_order(10.0),
         );
+        // Logged with the map (every few frames), not every frame: the set only grows.
         let removed = f.removed_points();
         if !removed.is_empty() {
             st.removed
                 .extend(removed.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]));
-            self.log(
-                "world/map/removed",
-                &rerun::Points3D::new(st.removed.iter().copied())
-                    .with_colors([colors::REMOVED])
-                    .with_radii([rerun::Radius::new_ui_points(2.5)]),
-            );
+            st.removed_new = true;
         }
         let state = match f.status {
             FrameStatus::Tracked => 1.0,
@@ -429,8 +481,12 @@ impl RunObserver for RerunObserver {
             );
         }
         if f.keyframe || every(self.params.trajectory_every) {
-            self.log_trajectories(&st, Some(f));
+            self.log_trajectories(&mut st, Some(f));
         }
+    }
+
+    fn wants_images(&self, pass: &PassInfo<'_>) -> bool {
+        self.params.images_in(pass)
     }
 
     fn pass_ends(&self, pass: &PassInfo<'_>, output: &PassOutput) {
@@ -447,7 +503,7 @@ impl RerunObserver {
     fn end(&self, pass: &PassInfo<'_>, trajectory: &Trajectory) {
         let mut st = self.state();
         st.estimate = trajectory.poses.iter().map(|p| (p.t, p.pose)).collect();
-        self.log_trajectories(&st, None);
+        self.log_trajectories(&mut st, None);
         self.event(
             format!(
                 "pass {} ends: {} of {} frames tracked",
@@ -457,5 +513,12 @@ impl RerunObserver {
             ),
             rerun::TextLogLevel::INFO,
         );
+        if st.last {
+            // The run's result is complete: what is logged reaches the file or viewer now,
+            // within the run's time (the caller's `finish` then has nothing left to send).
+            if let Err(e) = self.rec.flush_blocking() {
+                tracing::warn!("rerun: cannot flush the recording: {e}");
+            }
+        }
     }
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use dynapix::synthetic::{Realism, SynthOptions, SyntheticSequence};
 use dynapix::{CameraChoice, Config, Input, NoProgress, RunObserver, Trajectory};
-use dynapix::{OfflineRunner, RunOptions};
+use dynapix::{FrameView, OfflineRunner, PassInfo, PassOutput, RunOptions};
 use dynapix_rerun::read::read_rrd;
 use dynapix_rerun::{RerunObserver, RerunParams, Target};
 
@@ -43,6 +43,27 @@ fn poses(t: &Trajectory) -> Vec<(u64, [u64; 7])> {
         .collect()
 }
 
+/// Two observers of one run (one run, two recordings with different parameters).
+struct Both(Arc<RerunObserver>, Arc<RerunObserver>);
+
+impl RunObserver for Both {
+    fn wants_images(&self, pass: &PassInfo<'_>) -> bool {
+        self.0.wants_images(pass) || self.1.wants_images(pass)
+    }
+    fn pass_begins(&self, pass: &PassInfo<'_>) {
+        self.0.pass_begins(pass);
+        self.1.pass_begins(pass);
+    }
+    fn frame(&self, frame: &FrameView<'_>) {
+        self.0.frame(frame);
+        self.1.frame(frame);
+    }
+    fn pass_ends(&self, pass: &PassInfo<'_>, output: &PassOutput) {
+        self.0.pass_ends(pass, output);
+        self.1.pass_ends(pass, output);
+    }
+}
+
 #[test]
 fn an_offline_run_decodes_back_with_its_entities_and_counts() {
     let tmp = tempfile::tempdir().unwrap();
@@ -57,17 +78,28 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
         .run(&NoProgress)
         .unwrap();
 
+    // The default recording (images in the last pass only) and one with images in every
+    // pass, every 4th frame.
     let rrd = tmp.path().join("run.rrd");
     let observer = Arc::new(
         RerunObserver::open(&Target::Save(rrd.clone()), "test", RerunParams::default()).unwrap(),
     );
+    let rrd_all = tmp.path().join("all.rrd");
+    let all_params = RerunParams {
+        images_every: 4,
+        images_in_all_passes: true,
+        ..RerunParams::default()
+    };
+    let all =
+        Arc::new(RerunObserver::open(&Target::Save(rrd_all.clone()), "test", all_params).unwrap());
     let watched = OfflineRunner::new(&config, &input, RunOptions::default())
         .unwrap()
-        .with_observer(observer.clone() as Arc<dyn RunObserver>)
+        .with_observer(Arc::new(Both(observer.clone(), all.clone())) as Arc<dyn RunObserver>)
         .run(&NoProgress)
         .unwrap();
     observer.finish().unwrap();
-    drop(observer);
+    all.finish().unwrap();
+    drop((observer, all));
 
     // The viewer changes nothing.
     assert_eq!(plain.passes.len(), watched.passes.len());
@@ -93,15 +125,16 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
     assert_eq!(timelines, expected, "{c:?}");
     assert_eq!(c.layouts, n, "one layout per pass");
 
-    // One pose per tracked frame; one image, P overlay, depth, keypoint set and state per
-    // frame; the static pinhole once per pass.
+    // One pose per tracked frame, one keypoint set and state per frame of every pass; one
+    // image, P overlay and depth per frame of the last pass only; the static pinhole and P
+    // colours once per pass.
     let tracked: usize = passes.iter().map(|p| p.stats.tracked).sum();
     assert!(tracked > n * FRAMES / 2, "tracked {tracked}");
     assert_eq!(c.rows("world/camera"), tracked);
-    assert_eq!(c.rows("world/camera/image"), n * FRAMES + n);
-    assert_eq!(c.rows("world/camera/image/motion"), n * FRAMES);
+    assert_eq!(c.rows("world/camera/image"), FRAMES + n);
+    assert_eq!(c.rows("world/camera/image/motion"), FRAMES + n);
     assert_eq!(c.rows("world/camera/image/keypoints"), n * FRAMES);
-    assert_eq!(c.rows("depth"), n * FRAMES);
+    assert_eq!(c.rows("depth"), FRAMES);
     assert_eq!(c.rows("plots/tracking_state"), n * FRAMES);
     assert_eq!(c.rows("plots/tracked_map_points"), n * FRAMES);
     assert_eq!(c.rows("timings/track_ms"), n * FRAMES);
@@ -119,6 +152,21 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
     // Events: a begin and an end per pass, one line per keyframe at least.
     let keyframes: usize = passes.iter().map(|p| p.stats.keyframes).sum();
     assert!(c.rows("events") >= 2 * n + keyframes, "{c:?}");
+
+    // Images in every pass, of frames 0, 4, 8, …; the rest as in the default recording.
+    let a = read_rrd(&rrd_all).unwrap();
+    let sampled = FRAMES.div_ceil(4);
+    assert_eq!(a.rows("world/camera/image"), n * sampled + n);
+    assert_eq!(a.rows("world/camera/image/motion"), n * sampled + n);
+    assert_eq!(a.rows("depth"), n * sampled);
+    for path in [
+        "world/camera",
+        "world/camera/image/keypoints",
+        "world/map/points",
+        "events",
+    ] {
+        assert_eq!(a.rows(path), c.rows(path), "{path}");
+    }
 }
 
 #[test]
@@ -155,8 +203,10 @@ fn an_online_run_decodes_back_and_keeps_its_results() {
         ["log_time", "pass1"]
     );
     assert_eq!(c.rows("world/camera"), watched.tracked());
+    // An online run is its own last pass: images of every frame.
     assert_eq!(c.rows("world/camera/image/keypoints"), FRAMES);
-    assert_eq!(c.rows("world/camera/image/motion"), FRAMES);
+    assert_eq!(c.rows("world/camera/image/motion"), FRAMES + 1);
+    assert_eq!(c.rows("depth"), FRAMES);
     assert_eq!(c.rows("timings/motion_ms"), FRAMES);
     assert!(c.rows("world/trajectory/ground_truth") >= 1, "{c:?}");
 }

@@ -17,7 +17,7 @@ use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
 use crate::profile::process_usage;
 pub use crate::profile::{Profile, StageProfiler, StageTime, retain_freed_memory};
 use crate::progress::Progress;
-use crate::stream::{online_masks, run_online};
+use crate::stream::{online_masks, run_online_observed};
 
 /// Per-frame latency of an online bench: milliseconds spent in each `push` (the processing of
 /// the frame it releases: the pushed one, or with a lookahead the one pushed K frames before).
@@ -223,16 +223,18 @@ impl Clock {
 }
 
 /// Runs `config` offline on `input` from scratch (no cache: nothing is read from or written
-/// to disk but the sequence's frames) and measures it.
+/// to disk but the sequence's frames) and measures it, shown to `observer` when given (a
+/// viewer's cost is then part of the measured time).
 /// Returns the report and the run's output (for scoring).
 pub fn bench_offline(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
     progress: &dyn Progress,
+    observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
 ) -> Result<(BenchReport, OfflineOutput)> {
     // No cache: everything is computed and kept in memory, nothing is written or read back.
-    let runner = OfflineRunner::new(
+    let mut runner = OfflineRunner::new(
         config,
         input,
         RunOptions {
@@ -241,6 +243,9 @@ pub fn bench_offline(
             ..RunOptions::default()
         },
     )?;
+    if let Some(o) = observer {
+        runner = runner.with_observer(o);
+    }
     let clock = Clock::start(profiler);
     let out = runner.run(progress);
     let tracked = out
@@ -253,19 +258,20 @@ pub fn bench_offline(
 }
 
 /// Pushes every frame of `input` through [`OnlineDynaPix`](crate::OnlineDynaPix) with
-/// `config` ([`run_online`]: decoding included, on a reader thread that stays up to two
-/// frames ahead; DynaPix+ with the sequence's `mask/`) and measures it. Returns the report
-/// and the camera-to-world pose of every tracked frame.
+/// `config` ([`crate::run_online`]: decoding included, on a reader thread that stays up to two
+/// frames ahead; DynaPix+ with the sequence's `mask/`) and measures it, shown to `observer`
+/// when given. Returns the report and the camera-to-world pose of every tracked frame.
 pub fn bench_online(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
     progress: &dyn Progress,
+    observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
 ) -> Result<(BenchReport, dynapix_io::Trajectory)> {
     // Checked before the clock starts, like the offline runner checks its inputs.
     online_masks(input, config, None)?;
     let clock = Clock::start(profiler);
-    let (run, fed) = run_online(input, config, None, progress, &mut |_| {});
+    let (run, fed) = run_online_observed(input, config, None, progress, &mut |_| {}, observer);
     if let Err(e) = fed {
         profiler.stop();
         return Err(e);

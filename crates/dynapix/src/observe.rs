@@ -23,9 +23,11 @@ use crate::pass::PassOutput;
 /// Something that watches a run (a viewer, a recorder). Every method has a no-op default;
 /// calls come from the thread that runs the SLAM system, in frame order.
 pub trait RunObserver: Send + Sync {
-    /// Whether the frames' colour images are wanted ([`FrameView::rgb`]): a pass keeps each
-    /// frame's colour image until it is tracked only when this is true.
-    fn wants_images(&self) -> bool {
+    /// Whether the colour images of `pass`'s frames are wanted ([`FrameView::rgb`]): an
+    /// offline pass keeps each frame's colour image until it is tracked only when this is
+    /// true (asked once, before [`RunObserver::pass_begins`]). Online the image is decoded
+    /// anyway and always shown.
+    fn wants_images(&self, _pass: &PassInfo<'_>) -> bool {
         true
     }
 
@@ -59,6 +61,10 @@ pub struct PassInfo<'a> {
     pub ground_truth: Option<&'a Trajectory>,
     /// The pass is weighted by motion probabilities (DynaPix) rather than plain ORB-SLAM2.
     pub weighted: bool,
+    /// The pass is planned as the run's last one, whose trajectory is the result (the final
+    /// weighted pass of an offline DynaPix run, an ORB-SLAM2 run's pass, `slam`, an online
+    /// run); the passes before it only make the motion maps of the next.
+    pub last: bool,
 }
 
 /// How tracking may use a keypoint, from its static weight w = 1 − P and the method's

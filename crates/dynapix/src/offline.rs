@@ -351,7 +351,8 @@ impl<'a> OfflineRunner<'a> {
     }
 
     /// One SLAM pass with the method's weighting (`maps` = `None` runs unweighted ORB-SLAM2)
-    /// and relocalisation seed `seed`.
+    /// and relocalisation seed `seed`, shown to the observer as a run's last pass
+    /// ([`crate::PassInfo::last`]).
     pub fn pass(
         &self,
         method: Method,
@@ -359,6 +360,19 @@ impl<'a> OfflineRunner<'a> {
         seed: u64,
         label: &str,
         progress: &dyn Progress,
+    ) -> Result<PassOutput> {
+        self.pass_watched(method, maps, seed, label, progress, true)
+    }
+
+    /// [`OfflineRunner::pass`], shown to the observer as the run's last pass when `last`.
+    fn pass_watched(
+        &self,
+        method: Method,
+        maps: Option<&MapSet>,
+        seed: u64,
+        label: &str,
+        progress: &dyn Progress,
+        last: bool,
     ) -> Result<PassOutput> {
         let _phase = tracing::info_span!(target: "dynapix::phase", "SLAM passes").entered();
         let config = self.config.clone().with_method(method);
@@ -378,6 +392,7 @@ impl<'a> OfflineRunner<'a> {
         let watch = self.observer.as_ref().map(|(o, n)| Watch {
             observer: o.as_ref(),
             number: n.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+            last,
         });
         run_pass_observed(
             &self.input,
@@ -463,12 +478,13 @@ impl<'a> OfflineRunner<'a> {
             });
         }
         let out = match self.config.passes.first {
-            FirstPass::Orbslam2 => self.pass(
+            FirstPass::Orbslam2 => self.pass_watched(
                 Method::Orbslam2,
                 None,
                 self.config.slam.seed,
                 "first pass (orbslam2)",
                 progress,
+                false,
             )?,
             FirstPass::Rigidity => {
                 let rigidity = self
@@ -478,12 +494,13 @@ impl<'a> OfflineRunner<'a> {
                     Method::Orbslam2 => Method::Dynapix,
                     m => m,
                 };
-                self.pass(
+                self.pass_watched(
                     method,
                     Some(&rigidity),
                     self.config.slam.seed,
                     "first pass (rigidity)",
                     progress,
+                    false,
                 )?
             }
         };
@@ -711,7 +728,7 @@ impl<'a> OfflineRunner<'a> {
             } else {
                 format!("{method} pass {k}")
             };
-            let out = self.pass(method, Some(&m), seed, &label, progress)?;
+            let out = self.pass_watched(method, Some(&m), seed, &label, progress, k == n)?;
             // The maps of the passes before are done with: their temporary files go (a set
             // that `m` shares stays); the records stay.
             maps.iter_mut().for_each(MapSet::release);

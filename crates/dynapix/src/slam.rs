@@ -438,13 +438,16 @@ fn decode(
 /// Reader threads of a SLAM pass ([`Input::stream_parallel`]).
 const PASS_READERS: usize = 2;
 
-/// An observer of a pass and the pass's number in the run ([`PassInfo::number`]).
+/// An observer of a pass, the pass's number in the run ([`PassInfo::number`]) and whether it
+/// is the run's last pass ([`PassInfo::last`]).
 #[derive(Clone, Copy)]
 pub struct Watch<'a> {
     /// The observer.
     pub observer: &'a dyn RunObserver,
     /// The pass's number in the run, from 1.
     pub number: usize,
+    /// The pass is the run's last one (its trajectory is the result).
+    pub last: bool,
 }
 
 /// Runs `session` over every frame of `input` with `weights` and DynaPix+ `masks` (a folder of
@@ -474,8 +477,12 @@ pub fn run_pass_observed(
         camera: &pinhole,
         ground_truth: input.sequence.groundtruth.as_ref(),
         weighted: matches!(weights, PassWeights::Maps { .. }),
+        last: w.last,
     });
-    let keep_rgb = watch.is_some_and(|w| w.observer.wants_images());
+    let keep_rgb = match (watch, &info) {
+        (Some(w), Some(info)) => w.observer.wants_images(info),
+        _ => false,
+    };
     if let (Some(w), Some(info)) = (watch, &info) {
         session.system_mut().record_removed_points(true);
         w.observer.pass_begins(info);

@@ -50,6 +50,7 @@ impl SlamPass {
         let watch = observer.map(|observer| Watch {
             observer,
             number: 1,
+            last: true,
         });
         crate::slam::run_pass_observed(
             input,

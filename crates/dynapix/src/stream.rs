@@ -183,6 +183,7 @@ pub fn run_online_observed(
         camera: &pinhole,
         ground_truth: input.sequence.groundtruth.as_ref(),
         weighted: config.method.terms().is_some(),
+        last: true,
     };
     if let Some(o) = &observer {
         online.set_observer(o.clone());

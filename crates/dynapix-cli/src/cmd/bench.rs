@@ -40,6 +40,10 @@ pub struct Args {
     /// Write the report as a Markdown table to this file.
     #[arg(long, value_name = "FILE")]
     pub markdown: Option<PathBuf>,
+    /// Log the measured run to Rerun, as `run` does (its cost is part of the measurement;
+    /// with `--repeat` every run writes the recording anew).
+    #[command(flatten)]
+    pub viz: super::viz::VizArgs,
 }
 
 /// Runs `dynapix bench`.
@@ -65,17 +69,24 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     let config = super::run::config(&run_args)?;
     let input = args.seq.open(&config)?;
     let mut runs = Vec::with_capacity(args.repeat as usize);
+    let name = format!("bench {} {}", config.method, args.seq.seq_dir.display());
     for _ in 0..args.repeat {
+        let viz = args.viz.open(&name)?;
+        let observer = viz.as_ref().map(super::viz::Viz::observer);
         runs.push(if args.online {
-            dynapix::bench::bench_online(&config, &input, profiler, bars)?
+            dynapix::bench::bench_online(&config, &input, profiler, bars, observer)?
         } else {
-            let (r, out) = dynapix::bench::bench_offline(&config, &input, profiler, bars)?;
+            let (r, out) =
+                dynapix::bench::bench_offline(&config, &input, profiler, bars, observer)?;
             let t = out
                 .final_pass()
                 .map(|p| p.trajectory.clone())
                 .unwrap_or_default();
             (r, t)
         });
+        if let Some(v) = viz {
+            v.finish()?;
+        }
     }
     let walls: Vec<f64> = runs.iter().map(|(r, _)| r.wall_seconds).collect();
     let (mut report, trajectory) = runs.swap_remove(median_index(&walls));

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use dynapix::RunObserver;
 
-/// The viewer flags of `run` and `slam`.
+/// The viewer flags of `run`, `slam` and `bench`.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct VizArgs {
     /// Show the run live in the Rerun viewer: connects to a viewer listening on 127.0.0.1:9876
@@ -19,6 +19,16 @@ pub struct VizArgs {
     /// `--features viz`.
     #[arg(long, value_name = "FILE.rrd", conflicts_with = "rerun")]
     pub rerun_save: Option<PathBuf>,
+    /// Log the colour image, P and depth of every K-th frame only (1: every frame). Poses,
+    /// trajectories, keypoints, map and scalars are logged for every frame regardless.
+    #[arg(long, value_name = "K", default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    pub rerun_images_every: u32,
+    /// Log the images in every pass of an offline DynaPix run, not only in the last one (the
+    /// run's result; the earlier passes make the motion maps). Costs about one more
+    /// image-logging pass per extra pass.
+    #[arg(long)]
+    pub rerun_images_all_passes: bool,
 }
 
 /// A run's viewer, when one was asked for.
@@ -55,7 +65,12 @@ fn open(args: &VizArgs, name: &str) -> anyhow::Result<Viz> {
         }
         None => Target::Spawn,
     };
-    let observer = RerunObserver::open(&target, name, RerunParams::default())?;
+    let params = RerunParams {
+        images_every: args.rerun_images_every as usize,
+        images_in_all_passes: args.rerun_images_all_passes,
+        ..RerunParams::default()
+    };
+    let observer = RerunObserver::open(&target, name, params)?;
     Ok(Viz {
         observer: Arc::new(observer),
     })

@@ -496,12 +496,12 @@ impl OnlineDynaPix {
                     .as_ref()
                     .map_or(0.0, |m| m.loop_closing_seconds * 1e3),
             };
-            let rgb = observer.wants_images().then_some(&images.rgb);
+            // Decoded anyway: shown without asking `wants_images`.
             let mut view = FrameView::new(
                 index,
                 frame.t,
                 &res,
-                rgb,
+                Some(&images.rgb),
                 &images.depth,
                 motion.weights.as_ref(),
                 times,
