@@ -52,10 +52,14 @@ pub fn motion_classes(weights: &[f32], out: &mut Vec<u8>) {
 
 /// The colour of P overlay class `k` (see [`motion_classes`]): transparent at P ≈ 0, then
 /// red with an opacity growing with P (at most 220 of 255, so the image stays visible).
+/// The colour is premultiplied by its opacity, so that class 0 is (0, 0, 0, 0) whether the
+/// viewer blends premultiplied or straight colours (with straight blending the red of a
+/// class only looks darker).
 pub fn motion_class(k: u8) -> [u8; 4] {
     let k = k.min(P_LEVELS);
-    let alpha = (220 * u32::from(k) / u32::from(P_LEVELS)) as u8;
-    [255, 30, 30, alpha]
+    let alpha = 220 * u32::from(k) / u32::from(P_LEVELS);
+    let premultiplied = |c: u32| (c * alpha / 255) as u8;
+    [premultiplied(255), premultiplied(30), premultiplied(30), alpha as u8]
 }
 
 #[cfg(test)]
@@ -71,8 +75,8 @@ mod tests {
         let mut o = Vec::new();
         motion_classes(&[1.0, 0.0, 0.5, 0.96, 1.5], &mut o);
         assert_eq!(o, [0, P_LEVELS, P_LEVELS / 2, 0, 0]);
-        assert_eq!(motion_class(0)[3], 0, "P = 0 leaves the image as it is");
-        assert_eq!(motion_class(P_LEVELS), [255, 30, 30, 220]);
+        assert_eq!(motion_class(0), [0; 4], "P = 0 leaves the image as it is");
+        assert_eq!(motion_class(P_LEVELS), [220, 25, 25, 220]);
         assert_eq!(motion_class(P_LEVELS / 2)[3], 110);
     }
 }
