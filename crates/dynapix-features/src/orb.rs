@@ -372,6 +372,8 @@ impl OrbExtractor {
                 }
             }
         }
+        // Kept between the passes of a run: hold what is used, not what growth left over.
+        cands.shrink_to_fit();
         cands
     }
 
@@ -473,9 +475,16 @@ impl FastCorners {
         self.len() == 0
     }
 
-    /// Approximate memory held, in bytes.
+    /// Memory held, in bytes, measured from the buffers as allocated (their capacity): the
+    /// struct, the list of levels and every level's corners.
     pub fn bytes(&self) -> usize {
-        self.len() * std::mem::size_of::<octree::Cand>() + self.levels.len() * 24
+        std::mem::size_of::<Self>()
+            + self.levels.capacity() * std::mem::size_of::<Vec<octree::Cand>>()
+            + self
+                .levels
+                .iter()
+                .map(|l| l.capacity() * std::mem::size_of::<octree::Cand>())
+                .sum::<usize>()
     }
 }
 

@@ -15,8 +15,9 @@ use crate::images::{DepthImage, Gray16Image};
 /// than 13.1 m.
 pub const DEFAULT_MAX_DEPTH: f32 = 20.0;
 
-/// Which depth values are measurements (configurable per camera: `sequence.depth_saturation`
-/// and `sequence.max_depth` of a run's configuration).
+/// Which depth values are measurements (configurable per camera: the keys `depth_saturation`
+/// and `depth_max_m` of its settings file, overridden by `sequence.depth_saturation` and
+/// `sequence.max_depth` of a run's configuration; see [`DepthLimits`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DepthValidity {
     /// The raw value the sensor writes at saturation (65535); `None`: every raw value is a
@@ -41,6 +42,43 @@ impl DepthValidity {
         saturation: None,
         max_depth: f32::INFINITY,
     };
+}
+
+/// The depth limits one source states (a camera's `camera.yaml`, a run's configuration),
+/// each `None` where it states nothing: [`DepthLimits::or`] lets a source override another
+/// key by key, [`DepthLimits::validity`] fills what no source stated with the defaults
+/// ([`DepthValidity::default`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DepthLimits {
+    /// The raw saturation value: `Some(Some(v))` the value `v`, `Some(None)` none (every raw
+    /// value is a depth), `None` not stated.
+    pub saturation: Option<Option<u16>>,
+    /// The largest plausible depth in metres, `None` when not stated.
+    pub max_depth: Option<f32>,
+}
+
+impl DepthLimits {
+    /// True when the source states neither limit.
+    pub fn is_empty(&self) -> bool {
+        self.saturation.is_none() && self.max_depth.is_none()
+    }
+
+    /// These limits where stated, `under`'s for the rest.
+    pub fn or(self, under: DepthLimits) -> DepthLimits {
+        DepthLimits {
+            saturation: self.saturation.or(under.saturation),
+            max_depth: self.max_depth.or(under.max_depth),
+        }
+    }
+
+    /// The validity rule: the stated limits, the defaults for the others.
+    pub fn validity(self) -> DepthValidity {
+        let d = DepthValidity::default();
+        DepthValidity {
+            saturation: self.saturation.unwrap_or(d.saturation),
+            max_depth: self.max_depth.unwrap_or(d.max_depth),
+        }
+    }
 }
 
 /// Raw depth in metres like [`crate::images::depth_to_metres`] (`value · (1/depth_factor)`
@@ -102,5 +140,22 @@ mod tests {
         let (all, n) = depth_to_metres_valid(&raw, 5000.0, &DepthValidity::ALL);
         assert_eq!(n, 0);
         assert_eq!(all, plain);
+    }
+
+    #[test]
+    fn limits_override_key_by_key_and_default_the_rest() {
+        let camera = DepthLimits {
+            saturation: Some(Some(4000)),
+            max_depth: Some(4.5),
+        };
+        let config = DepthLimits {
+            saturation: Some(None),
+            max_depth: None,
+        };
+        assert!(DepthLimits::default().is_empty() && !config.is_empty());
+        let v = config.or(camera).validity();
+        assert_eq!((v.saturation, v.max_depth), (None, 4.5));
+        assert_eq!(camera.validity().saturation, Some(4000));
+        assert_eq!(DepthLimits::default().validity(), DepthValidity::default());
     }
 }

@@ -48,7 +48,7 @@ pub mod weights;
 
 pub use atomic::write_atomic;
 pub use datasets::Dataset;
-pub use depth::DepthValidity;
+pub use depth::{DepthLimits, DepthValidity};
 pub use error::{IoError, Result};
 pub use ground_truth::{
     GroundTruth, GroundTruthConvention, GtFrame, camera_trajectory, read_ground_truth,

@@ -29,7 +29,7 @@ use dynapix_geometry::Se3;
 use image::{GrayImage, RgbImage};
 
 use crate::datasets::ASSOCIATION_FILES;
-use crate::depth::{DepthValidity, depth_to_metres_valid};
+use crate::depth::{DepthLimits, DepthValidity, depth_to_metres_valid};
 use crate::error::{IoError, Result};
 use crate::ground_truth::{GROUNDTRUTH_FILE, GroundTruthConvention, GtFrame, read_ground_truth};
 use crate::images::{self, DepthImage, ProbMap};
@@ -109,8 +109,10 @@ pub struct SequenceOptions {
     /// Folder of the probability maps (named like the rgb images); `None` = `<dir>/prob`.
     /// Lets a read-only dataset use maps computed elsewhere.
     pub prob_dir: Option<PathBuf>,
-    /// Which depth values are measurements (the others are read as missing).
-    pub depth_validity: DepthValidity,
+    /// Depth limits that override the sequence's own camera (`camera.yaml`, keys
+    /// `depth_saturation` and `depth_max_m`) key by key; what neither states takes the
+    /// default ([`DepthValidity::default`]). Depth outside the limits is read as missing.
+    pub depth_limits: DepthLimits,
 }
 
 impl Default for SequenceOptions {
@@ -122,7 +124,7 @@ impl Default for SequenceOptions {
             association_file: None,
             gt_max_gap: DEFAULT_MAX_GAP,
             prob_dir: None,
-            depth_validity: DepthValidity::default(),
+            depth_limits: DepthLimits::default(),
         }
     }
 }
@@ -330,6 +332,14 @@ impl Sequence {
                 format!("depth factor must be positive, got {depth_factor}"),
             ));
         }
+        // The caller's limits win key by key over the camera's own (`camera.yaml`).
+        let depth_validity = opts
+            .depth_limits
+            .or(settings
+                .as_ref()
+                .map(|s| s.depth_limits)
+                .unwrap_or_default())
+            .validity();
         Ok(Self {
             dir,
             layout,
@@ -342,7 +352,7 @@ impl Sequence {
             depth_factor,
             gt_max_gap: opts.gt_max_gap,
             prob_dir,
-            depth_validity: opts.depth_validity,
+            depth_validity,
             invalid_depth: Arc::default(),
         })
     }

@@ -20,6 +20,7 @@ use serde::Deserialize;
 
 use crate::atomic::write_atomic;
 use crate::datasets::Dataset;
+use crate::depth::DepthLimits;
 use crate::error::{IoError, Result};
 use crate::text::read_text;
 
@@ -89,6 +90,11 @@ pub struct Settings {
     pub depth_map_factor: f64,
     /// `ORBextractor.*` parameters.
     pub orb: OrbSettings,
+    /// The camera's depth limits (`depth_saturation`: the raw value it writes at saturation,
+    /// `null` for none; `depth_max_m`: its largest plausible depth in metres), `None` where
+    /// the file states none: a run's configuration overrides them, the defaults of
+    /// [`crate::DepthValidity`] fill the rest.
+    pub depth_limits: DepthLimits,
 }
 
 /// The raw keys as read; all optional so that a missing key gets our own message.
@@ -136,6 +142,19 @@ struct RawSettings {
     ini_th_fast: Option<i64>,
     #[serde(rename = "ORBextractor.minThFAST")]
     min_th_fast: Option<i64>,
+    /// Absent: `None`; `null`: `Some(None)` (no saturation value).
+    #[serde(default, deserialize_with = "stated")]
+    depth_saturation: Option<Option<i64>>,
+    depth_max_m: Option<f64>,
+}
+
+/// A key that may be given as `null`: `Some(None)` then, `None` when absent (`default`).
+fn stated<'de, D, T>(d: D) -> std::result::Result<Option<Option<T>>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Option::<T>::deserialize(d).map(Some)
 }
 
 impl RawSettings {
@@ -285,6 +304,11 @@ struct Problem {
     message: String,
 }
 
+/// What a bad `depth_saturation` is told.
+fn saturation_range(v: i64) -> String {
+    format!("must be a raw depth value in 1..=65535 (null: none), got {v}")
+}
+
 fn problem(key: &'static str, message: impl Into<String>) -> Problem {
     Problem {
         key,
@@ -334,7 +358,17 @@ impl Settings {
             serde_saphyr::from_str_with_options(&pre, options).map_err(|e| {
                 let msg = e.to_string();
                 match e.location() {
-                    Some(loc) if loc.line() > 0 => IoError::parse(path, loc.line() as usize, msg),
+                    Some(loc) if loc.line() > 0 => {
+                        let line = loc.line() as usize;
+                        // Name the key of that line (a value of the wrong type).
+                        let msg = match lines.iter().find(|&(_, &l)| l == line) {
+                            Some((key, _)) if !msg.contains(key.as_str()) => {
+                                format!("{key}: {msg}")
+                            }
+                            _ => msg,
+                        };
+                        IoError::parse(path, line, msg)
+                    }
                     _ => IoError::invalid(path, msg),
                 }
             })?;
@@ -366,6 +400,14 @@ impl Settings {
         let height = match r.height {
             Some(h) => count(h, "Camera.height")?,
             None => DEFAULT_SIZE.1,
+        };
+        let saturation = match r.depth_saturation {
+            Some(Some(v)) => {
+                Some(Some(u16::try_from(v).map_err(|_| {
+                    problem("depth_saturation", saturation_range(v))
+                })?))
+            }
+            other => other.map(|_| None),
         };
         let rgb = match need(r.rgb, "Camera.RGB")? {
             0 => false,
@@ -409,6 +451,10 @@ impl Settings {
                     need(r.min_th_fast, "ORBextractor.minThFAST")?,
                     "ORBextractor.minThFAST",
                 )?,
+            },
+            depth_limits: DepthLimits {
+                saturation,
+                max_depth: r.depth_max_m.map(|m| m as f32),
             },
         })
     }
@@ -458,6 +504,17 @@ impl Settings {
         positive(self.bf, "Camera.bf")?;
         positive(self.th_depth, "ThDepth")?;
         positive(self.depth_map_factor, "DepthMapFactor")?;
+        if let Some(Some(0)) = self.depth_limits.saturation {
+            return Err(problem("depth_saturation", saturation_range(0)));
+        }
+        if let Some(m) = self.depth_limits.max_depth
+            && !(m.is_finite() && m > 0.0 && m <= 1000.0)
+        {
+            return Err(problem(
+                "depth_max_m",
+                format!("must lie in (0, 1000] metres, got {m}"),
+            ));
+        }
         if self.orb.n_features == 0 {
             return Err(problem("ORBextractor.nFeatures", "must be positive"));
         }
@@ -547,6 +604,15 @@ impl Settings {
         kv("ORBextractor.nLevels", self.orb.n_levels.to_string());
         kv("ORBextractor.iniThFAST", self.orb.ini_th_fast.to_string());
         kv("ORBextractor.minThFAST", self.orb.min_th_fast.to_string());
+        if let Some(v) = self.depth_limits.saturation {
+            kv(
+                "depth_saturation",
+                v.map_or("null".into(), |v| v.to_string()),
+            );
+        }
+        if let Some(m) = self.depth_limits.max_depth {
+            kv("depth_max_m", format!("{m:?}"));
+        }
         s
     }
 
@@ -572,6 +638,7 @@ impl Settings {
             th_depth: 40.0,
             depth_map_factor: factor,
             orb: OrbSettings::default(),
+            depth_limits: DepthLimits::default(),
         }
     }
 
@@ -702,6 +769,40 @@ mod tests {
         let bad = short.replace("DepthMapFactor: 1000.0", "DepthMapFactor: -1.0");
         let e = Settings::parse_lenient(&bad, p).unwrap_err().to_string();
         assert!(e.contains("DepthMapFactor") && e.contains(":6"), "{e}");
+    }
+
+    #[test]
+    fn depth_limit_keys_are_optional_read_written_and_checked_by_name() {
+        let p = Path::new("seq/camera.yaml");
+        let (s, _) = Settings::parse_lenient(FR3_LIKE, p).unwrap();
+        assert!(s.depth_limits.is_empty());
+        let text = format!("{FR3_LIKE}depth_saturation: 4095\ndepth_max_m: 4.5\n");
+        let (s, missing) = Settings::parse_lenient(&text, p).unwrap();
+        assert!(missing.is_empty(), "{missing:?}");
+        assert_eq!(s.depth_limits.saturation, Some(Some(4095)));
+        assert_eq!(s.depth_limits.max_depth, Some(4.5));
+        assert_eq!(Settings::parse(&s.to_yaml_string(), p).unwrap(), s);
+        let off = format!("{FR3_LIKE}depth_saturation: null\n");
+        let s = Settings::parse(&off, p).unwrap();
+        assert_eq!(s.depth_limits.saturation, Some(None));
+        assert_eq!(Settings::parse(&s.to_yaml_string(), p).unwrap(), s);
+        let line = FR3_LIKE.split('\n').count();
+        for (bad, key) in [
+            ("depth_max_m: -2.0", "depth_max_m"),
+            ("depth_max_m: 0", "depth_max_m"),
+            ("depth_max_m: .inf", "depth_max_m"),
+            ("depth_saturation: 70000", "depth_saturation"),
+            ("depth_saturation: 0", "depth_saturation"),
+            ("depth_saturation: -1", "depth_saturation"),
+        ] {
+            let e = Settings::parse_lenient(&format!("{FR3_LIKE}{bad}\n"), p)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("seq/camera.yaml") && e.contains(key) && e.contains(&format!(":{line}")),
+                "{bad}: {e}"
+            );
+        }
     }
 
     /// An ORB-SLAM2-style file with the quirks of the upstream ones: `%YAML:1.0`, comments,

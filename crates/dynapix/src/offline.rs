@@ -439,6 +439,7 @@ impl<'a> OfflineRunner<'a> {
             "frames_hash": self.input.frames_hash(),
             "frames": self.input.len(),
             "camera": self.input.camera.record(),
+            "depth_validity": self.input.sequence.depth_validity,
             "params": params,
             "weights": weights,
             "method": c.method.name(),
@@ -739,6 +740,7 @@ impl<'a> OfflineRunner<'a> {
             .iter()
             .try_fold(false, |acc, m| m.ground_truth.map(|g| acc || g));
         record.ground_truth_used_at_run_time = gt_used;
+        record.decoded_cache = Some(self.input.decoded_record());
         if let Some(why) = untracked {
             record.nothing_tracked = Some(why);
         } else if passes.last().is_some_and(|p| p.trajectory.is_empty()) {

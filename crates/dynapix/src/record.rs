@@ -86,6 +86,11 @@ pub struct RunRecord {
     /// The relocalisation seed of the first run.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// The decoded-frame cache of an offline DynaPix run (`sequence.decoded_cache_mib`):
+    /// budget, the most bytes it held at once (measured from its buffers) and what it held
+    /// at the end of the passes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decoded_cache: Option<Value>,
     /// The passes before the final one, evaluated (`passes/first`, `passes/pass_K`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub earlier_passes: Option<Vec<Value>>,
@@ -132,6 +137,7 @@ impl RunRecord {
             invalid_depth: None,
             runs: None,
             seed: None,
+            decoded_cache: None,
             earlier_passes: None,
             skipped_frames: None,
             results: None,
@@ -336,6 +342,56 @@ pub struct SequenceRecord {
     pub groundtruth_convention: Option<GroundTruthRecord>,
     /// The camera.
     pub camera: CameraRecord,
+    /// Which depth values were read as measurements (absent in records written before the
+    /// rule was per camera).
+    #[serde(default)]
+    pub depth_validity: Option<DepthValidityRecord>,
+}
+
+/// The depth-validity rule of a run and where each limit came from
+/// (`run.json` → `sequence.depth_validity`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DepthValidityRecord {
+    /// The raw value read as missing (the sensor's saturation value; `null`: none).
+    pub saturation: Option<u16>,
+    /// Depths beyond this many metres were read as missing.
+    pub max_depth_m: f32,
+    /// Where `saturation` came from: `config` (`sequence.depth_saturation`), `camera` (the
+    /// camera's settings file, key `depth_saturation`) or `default`.
+    pub saturation_from: String,
+    /// Where `max_depth_m` came from: `config` (`sequence.max_depth`), `camera` (key
+    /// `depth_max_m`) or `default`.
+    pub max_depth_from: String,
+}
+
+impl DepthValidityRecord {
+    /// The rule of a run whose configuration states `config` and whose camera states
+    /// `camera` (the configuration wins key by key, the defaults fill the rest).
+    pub fn resolve(config: dynapix_io::DepthLimits, camera: dynapix_io::DepthLimits) -> Self {
+        let v = config.or(camera).validity();
+        let from = |c: bool, k: bool| {
+            match (c, k) {
+                (true, _) => "config",
+                (false, true) => "camera",
+                _ => "default",
+            }
+            .to_string()
+        };
+        Self {
+            saturation: v.saturation,
+            max_depth_m: v.max_depth,
+            saturation_from: from(config.saturation.is_some(), camera.saturation.is_some()),
+            max_depth_from: from(config.max_depth.is_some(), camera.max_depth.is_some()),
+        }
+    }
+
+    /// The rule itself.
+    pub fn validity(&self) -> dynapix_io::DepthValidity {
+        dynapix_io::DepthValidity {
+            saturation: self.saturation,
+            max_depth: self.max_depth_m,
+        }
+    }
 }
 
 /// How a sequence's `groundtruth.txt` was read.

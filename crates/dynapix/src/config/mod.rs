@@ -38,8 +38,11 @@ use serde_json::Value;
 use crate::error::{Error, Result};
 use crate::method::{Method, Mode, Terms};
 
+mod depth;
 mod parse;
 mod validate;
+
+pub use depth::CameraOr;
 
 use parse::*;
 
@@ -140,22 +143,23 @@ pub struct SequenceConfig {
     /// kept in the order they are first read until the budget is spent (a pass reads the
     /// sequence in order, so a least-recently-used policy would keep nothing useful).
     pub decoded_cache_mib: usize,
-    /// The raw depth value the camera writes at saturation (65535, the largest 16-bit
-    /// value); such pixels are read as missing by every consumer (SLAM, the cues, the
-    /// paper's terms), with a warning giving their count per frame. `null`: every raw value
-    /// is a depth.
-    pub depth_saturation: Option<u16>,
-    /// Depths beyond this many metres (20; in (0, 1000]) are no measurement of the camera
-    /// and are read as missing, like saturated ones.
-    pub max_depth: f32,
+    /// The raw depth value the camera writes at saturation; such pixels are read as missing
+    /// by every consumer (SLAM, the cues, the paper's terms), with a warning giving their
+    /// count per frame. `null`: every raw value is a depth. `"camera"` (the default): the
+    /// camera's `depth_saturation` (its settings file), else 65535.
+    pub depth_saturation: CameraOr<Option<u16>>,
+    /// Depths beyond this many metres (in (0, 1000]) are no measurement of the camera and
+    /// are read as missing, like saturated ones. `"camera"` (the default): the camera's
+    /// `depth_max_m`, else 20.
+    pub max_depth: CameraOr<f32>,
 }
 
 impl SequenceConfig {
-    /// Which depth values are measurements.
-    pub fn depth_validity(&self) -> dynapix_io::DepthValidity {
-        dynapix_io::DepthValidity {
-            saturation: self.depth_saturation,
-            max_depth: self.max_depth,
+    /// The depth limits this configuration sets (the others are the camera's).
+    pub fn depth_limits(&self) -> dynapix_io::DepthLimits {
+        dynapix_io::DepthLimits {
+            saturation: self.depth_saturation.stated(),
+            max_depth: self.max_depth.stated(),
         }
     }
 }
@@ -168,8 +172,8 @@ impl Default for SequenceConfig {
             max_frames: None,
             skip_bad_frames: false,
             decoded_cache_mib: 1024,
-            depth_saturation: dynapix_io::DepthValidity::default().saturation,
-            max_depth: dynapix_io::DepthValidity::default().max_depth,
+            depth_saturation: CameraOr::Camera,
+            max_depth: CameraOr::Camera,
         }
     }
 }

@@ -62,7 +62,13 @@ impl Validate for SequenceConfig {
         optional("max_frames", self.max_frames, 1, 100_000_000)?;
         // 1 TiB: more than any machine this runs on.
         range("decoded_cache_mib", self.decoded_cache_mib, 0, 1 << 20)?;
-        above("max_depth", self.max_depth, 0.0, 1000.0)
+        if let Some(Some(v)) = self.depth_saturation.stated() {
+            range("depth_saturation", v, 1, u16::MAX)?;
+        }
+        match self.max_depth.stated() {
+            Some(m) => above("max_depth", m, 0.0, 1000.0),
+            None => Ok(()),
+        }
     }
 }
 

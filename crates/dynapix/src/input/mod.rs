@@ -15,7 +15,7 @@ use image::RgbImage;
 use crate::config::SequenceConfig;
 use crate::error::{BadFrame, Error, Result};
 use crate::hash::Fnv64;
-use crate::record::{GroundTruthRecord, SequenceRecord};
+use crate::record::{DepthValidityRecord, GroundTruthRecord, SequenceRecord};
 
 mod cache;
 mod camera;
@@ -40,6 +40,8 @@ pub struct Input {
     /// Decoded frames kept between passes ([`SequenceConfig::decoded_cache_mib`]); clones of
     /// an input share it.
     decoded: DecodedFrames,
+    /// The depth-validity rule of the sequence and where its limits came from.
+    depth_validity: DepthValidityRecord,
 }
 
 /// Reads a settings file leniently (missing keys take the TUM values).
@@ -86,7 +88,7 @@ impl Input {
             max_diff: config.max_diff,
             pairing: config.pairing,
             association_file: association.map(Path::to_path_buf),
-            depth_validity: config.depth_validity(),
+            depth_limits: config.depth_limits(),
             ..Default::default()
         };
         let mut sequence = Sequence::open_with(dir, &opts)?;
@@ -159,6 +161,10 @@ impl Input {
             );
         }
         sequence.depth_factor = settings.depth_map_factor;
+        // The configuration's limits win key by key over the camera's (its settings file).
+        let depth_validity =
+            DepthValidityRecord::resolve(config.depth_limits(), settings.depth_limits);
+        sequence.depth_validity = depth_validity.validity();
         Ok(Self {
             sequence,
             camera: Camera {
@@ -169,6 +175,7 @@ impl Input {
             skip_bad_frames: config.skip_bad_frames,
             bad: Arc::new(OnceLock::new()),
             decoded: DecodedFrames::new(config.decoded_cache_mib),
+            depth_validity,
         })
     }
 
@@ -191,8 +198,8 @@ impl Input {
     /// (missing, truncated, undecodable, rgb and depth of different sizes, a size other than
     /// the camera's) is an [`Error::Frame`] naming the frame, its time and the file.
     pub fn load_rgbd(&self, i: usize) -> Result<(RgbImage, dynapix_io::DepthImage)> {
-        if let Some(f) = self.decoded.get(i) {
-            return Ok((f.0.clone(), f.1.clone()));
+        if let Some(f) = self.decoded.rgbd(i) {
+            return Ok(f);
         }
         let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
         let info = self.sequence.info(i)?;
@@ -254,6 +261,12 @@ impl Input {
         self.decoded.peak_bytes()
     }
 
+    /// What the decoded-frame cache held (`run.json` → `decoded_cache`): budget, peak bytes,
+    /// frames and corner sets kept now.
+    pub fn decoded_record(&self) -> serde_json::Value {
+        self.decoded.record()
+    }
+
     /// Number of decoded frames kept in memory between passes
     /// ([`SequenceConfig::decoded_cache_mib`]).
     pub fn decoded_frames_kept(&self) -> usize {
@@ -282,8 +295,8 @@ impl Input {
     /// The depth (metres) of frame `i`: from the decoded frames kept between passes when
     /// there, else read from its file (without keeping it).
     pub fn load_depth(&self, i: usize) -> Result<dynapix_io::DepthImage> {
-        if let Some(f) = self.decoded.get(i) {
-            return Ok(f.1.clone());
+        if let Some(d) = self.decoded.depth(i) {
+            return Ok(d);
         }
         let _stage = tracing::info_span!(target: "dynapix::stage", "decode images").entered();
         Ok(self.sequence.load_depth(i)?)
@@ -356,6 +369,7 @@ impl Input {
             groundtruth: s.groundtruth.is_some(),
             groundtruth_convention: self.ground_truth_record(),
             camera: self.camera.record(),
+            depth_validity: Some(self.depth_validity.clone()),
         }
     }
 
