@@ -59,7 +59,12 @@ pub fn motion_class(k: u8) -> [u8; 4] {
     let k = k.min(P_LEVELS);
     let alpha = 220 * u32::from(k) / u32::from(P_LEVELS);
     let premultiplied = |c: u32| (c * alpha / 255) as u8;
-    [premultiplied(255), premultiplied(30), premultiplied(30), alpha as u8]
+    [
+        premultiplied(255),
+        premultiplied(30),
+        premultiplied(30),
+        alpha as u8,
+    ]
 }
 
 #[cfg(test)]
