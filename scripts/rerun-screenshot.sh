@@ -32,11 +32,20 @@ if [ ! -d "$NODE_DIR/node_modules/playwright-core" ]; then
 fi
 "$VENV/bin/rerun" analytics disable > /dev/null 2>&1
 
+# A viewer already serving these ports would be screenshotted instead of this recording.
+for port in "$HTTP_PORT" "$GRPC_PORT"; do
+  if (exec 3<> "/dev/tcp/127.0.0.1/$port") 2> /dev/null; then
+    echo "port $port on 127.0.0.1 is in use (another viewer?); set RERUN_HTTP_PORT/RERUN_GRPC_PORT" >&2
+    exit 2
+  fi
+done
 LOG=$(mktemp); PROFILE=$(mktemp -d)
-"$VENV/bin/rerun" "$RRD" --web-viewer --bind 127.0.0.1 --port "$GRPC_PORT" \
+# In a process group of its own: `rerun` is a Python launcher whose viewer is a child process,
+# and both must go when the script ends.
+setsid "$VENV/bin/rerun" "$RRD" --web-viewer --bind 127.0.0.1 --port "$GRPC_PORT" \
   --web-viewer-port "$HTTP_PORT" > "$LOG" 2>&1 &
 VIEWER=$!
-cleanup() { kill "$VIEWER" 2> /dev/null || true; wait "$VIEWER" 2> /dev/null || true; rm -rf "$PROFILE" "$LOG"; }
+cleanup() { kill -- -"$VIEWER" 2> /dev/null || kill "$VIEWER" 2> /dev/null || true; wait "$VIEWER" 2> /dev/null || true; rm -rf "$PROFILE" "$LOG"; }
 trap cleanup EXIT
 for _ in $(seq 60); do
   if (exec 3<> "/dev/tcp/127.0.0.1/$HTTP_PORT") 2> /dev/null; then break; fi

@@ -46,7 +46,8 @@ pub fn motion_classes(weights: &[f32], out: &mut Vec<u8>) {
     out.clear();
     out.extend(weights.iter().map(|&w| {
         let p = (1.0 - w).clamp(0.0, 1.0);
-        (p * f32::from(P_LEVELS)).round() as u8
+        // Rounded to the nearest class (p ≥ 0, so + 0.5 and truncation round).
+        (p * f32::from(P_LEVELS) + 0.5) as u8
     }));
 }
 

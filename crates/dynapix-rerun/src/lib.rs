@@ -45,6 +45,7 @@
 #![forbid(unsafe_code)]
 
 mod colors;
+mod encode;
 pub mod layout;
 mod observer;
 pub mod read;

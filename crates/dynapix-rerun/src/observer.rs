@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use dynapix::{FrameView, PassInfo, PassOutput, RunObserver, Trajectory};
 use dynapix_eval::{AteParams, ate};
@@ -98,6 +99,8 @@ pub struct RerunObserver {
     target: String,
     params: RerunParams,
     state: Mutex<PassState>,
+    /// The static entities were logged ([`RerunObserver::log_statics`]).
+    statics_sent: AtomicBool,
 }
 
 impl RerunObserver {
@@ -123,6 +126,7 @@ impl RerunObserver {
             target,
             params,
             state: Mutex::new(PassState::default()),
+            statics_sent: AtomicBool::new(false),
         }
     }
 
@@ -253,16 +257,48 @@ impl RerunObserver {
         }
     }
 
+    /// What does not change during a recording, logged once (with the first pass): the
+    /// axes, the camera's pinhole and the colours of the P overlay, on the overlay's entity
+    /// and on `world`. Logged at every pass and on the overlay's entity only, the viewer
+    /// (0.36) drew the overlay of a multi-pass recording in its automatic class colours
+    /// (blue, green, yellow) instead of the ones logged (seen in screenshots of the Bonn
+    /// window; which of the two changes mattered was not isolated).
+    fn log_statics(&self, pass: &PassInfo<'_>) {
+        self.log_static("world", &rerun::ViewCoordinates::RDF());
+        let c = pass.camera;
+        self.log_static(
+            "world/camera/image",
+            &rerun::Pinhole::from_focal_length_and_resolution(
+                [c.fx as f32, c.fy as f32],
+                [c.width as f32, c.height as f32],
+            )
+            .with_principal_point([c.cx as f32, c.cy as f32])
+            .with_image_plane_distance(0.25),
+        );
+        let context = rerun::AnnotationContext::new(
+            (0..=colors::P_LEVELS)
+                .map(|k| {
+                    let [r, g, b, a] = colors::motion_class(k);
+                    let label = format!("P ≈ {:.2}", f32::from(k) / f32::from(colors::P_LEVELS));
+                    (
+                        u16::from(k),
+                        label.as_str(),
+                        rerun::Rgba32::from_unmultiplied_rgba(r, g, b, a),
+                    )
+                        .into()
+                })
+                .collect::<Vec<rerun::datatypes::ClassDescriptionMapElem>>(),
+        );
+        // On the overlay itself (the 2D view) and on `world` (the 3D view's frustum).
+        self.log_static("world/camera/image/motion", &context);
+        self.log_static("world", &context);
+    }
+
     /// The colour image, P overlay, keypoints and depth of a frame.
     fn log_images(&self, st: &mut PassState, f: &FrameView<'_>) {
         if let Some(rgb) = f.rgb {
-            let mut jpeg = Vec::new();
-            let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(
-                &mut jpeg,
-                self.params.jpeg_quality.clamp(1, 100),
-            );
-            match rgb.write_with_encoder(enc) {
-                Ok(()) => self.log(
+            match crate::encode::jpeg(rgb, self.params.jpeg_quality) {
+                Ok(jpeg) => self.log(
                     "world/camera/image",
                     &rerun::EncodedImage::from_file_contents(jpeg)
                         .with_media_type(rerun::MediaType::jpeg()),
@@ -291,28 +327,12 @@ impl RerunObserver {
             }
             None => self.log("world/camera/image/motion", &rerun::Clear::flat()),
         }
-        let s = self.params.depth_downscale.max(1);
-        let (w, h) = (f.depth.width() / s, f.depth.height() / s);
-        let mut mm = Vec::with_capacity((w * h) as usize);
-        for y in 0..h {
-            for x in 0..w {
-                let d = f.depth.get_pixel(x * s, y * s)[0];
-                let v = if d.is_finite() && d > 0.0 {
-                    (d * 1000.0).round().min(65535.0) as u16
-                } else {
-                    0
-                };
-                mm.push(v);
-            }
-        }
+        let (bytes, size) = crate::encode::depth_mm(f.depth, self.params.depth_downscale);
         self.log(
             "depth",
-            &rerun::DepthImage::from_gray16(
-                mm.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>(),
-                [w, h],
-            )
-            .with_meter(1000.0)
-            .with_colormap(rerun::components::Colormap::Turbo),
+            &rerun::DepthImage::from_gray16(bytes, size)
+                .with_meter(1000.0)
+                .with_colormap(rerun::components::Colormap::Turbo),
         );
     }
 }
@@ -348,35 +368,9 @@ impl RunObserver for RerunObserver {
         ) {
             tracing::warn!("rerun: cannot send the layout: {e}");
         }
-        self.log_static("world", &rerun::ViewCoordinates::RDF());
-        let c = pass.camera;
-        self.log_static(
-            "world/camera/image",
-            &rerun::Pinhole::from_focal_length_and_resolution(
-                [c.fx as f32, c.fy as f32],
-                [c.width as f32, c.height as f32],
-            )
-            .with_principal_point([c.cx as f32, c.cy as f32])
-            .with_image_plane_distance(0.25),
-        );
-        self.log_static(
-            "world/camera/image/motion",
-            &rerun::AnnotationContext::new(
-                (0..=colors::P_LEVELS)
-                    .map(|k| {
-                        let [r, g, b, a] = colors::motion_class(k);
-                        let label =
-                            format!("P ≈ {:.2}", f32::from(k) / f32::from(colors::P_LEVELS));
-                        (
-                            u16::from(k),
-                            label.as_str(),
-                            rerun::Rgba32::from_unmultiplied_rgba(r, g, b, a),
-                        )
-                            .into()
-                    })
-                    .collect::<Vec<rerun::datatypes::ClassDescriptionMapElem>>(),
-            ),
-        );
+        if !self.statics_sent.swap(true, Ordering::Relaxed) {
+            self.log_statics(pass);
+        }
         // The previous pass's time must not stick to this pass's rows.
         self.rec.reset_time();
         if let Ok(name) = rerun::TimelineName::try_new(&timeline) {
@@ -446,10 +440,7 @@ impl RunObserver for RerunObserver {
         self.scalar("plots/tracked_map_points", f.tracked_points as f64);
         self.scalar("plots/map_points", f.num_map_points() as f64);
         if let Some(w) = f.weights {
-            let img = w.as_image().as_raw();
-            let mean_p =
-                img.iter().map(|&w| 1.0 - f64::from(w)).sum::<f64>() / img.len().max(1) as f64;
-            self.scalar("plots/mean_p", mean_p);
+            self.scalar("plots/mean_p", crate::encode::mean_p(w.as_image().as_raw()));
         }
         let t = f.times;
         if let Some(m) = t.motion_ms {
