@@ -141,7 +141,10 @@ pub struct SequenceConfig {
     /// each frame's images are decoded once instead of once per pass (0: decode every time;
     /// single-pass runs and the online mode keep nothing). Frames are
     /// kept in the order they are first read until the budget is spent (a pass reads the
-    /// sequence in order, so a least-recently-used policy would keep nothing useful).
+    /// sequence in order, so a least-recently-used policy would keep nothing useful). The
+    /// cache leaves 1/64 of the budget unused as a margin for what keeping frames costs
+    /// beyond their bytes, so the run's peak memory stays within its peak without a cache
+    /// plus this budget.
     pub decoded_cache_mib: usize,
     /// The raw depth value the camera writes at saturation; such pixels are read as missing
     /// by every consumer (SLAM, the cues, the paper's terms), with a warning giving their
