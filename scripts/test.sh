@@ -20,6 +20,8 @@ step "cargo clippy --workspace --features dynapix-cli/viz --all-targets --releas
 cargo clippy --workspace --features dynapix-cli/viz --all-targets --release -- -D warnings
 step "cargo doc --workspace --no-deps (warnings are errors)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --release
+step "python3 scripts/check-api.py (the public items of dynapix, as listed)"
+python3 scripts/check-api.py
 step "python3 scripts/check-unused-deps.py"
 python3 scripts/check-unused-deps.py
 step "python3 scripts/check-cycles.py"

@@ -54,7 +54,7 @@ fn kind(e: &dynapix::Error) -> Kind {
     match e {
         E::Config { .. } | E::Orb(_) => Kind::Config,
         E::Io(_) | E::File { .. } | E::Vocabulary { .. } => Kind::Io,
-        E::Stopped(s) => kind(&s.error),
+        E::Stopped { error, .. } => kind(error),
         _ => Kind::Data,
     }
 }

@@ -66,7 +66,7 @@ pub fn report<'py>(
     args: EvalArgs,
 ) -> PyResult<Bound<'py, PyAny>> {
     let r = compute(py, move || {
-        dynapix::evaluate::evaluate_poses(&gt, &est, reference.as_deref(), &args.0)
+        dynapix::evaluate::evaluate(&gt, &est, reference.as_deref(), &args.0)
     })?;
     let v = serde_json::to_value(&r).map_err(|e| config(e.to_string()))?;
     to_python(py, &v)

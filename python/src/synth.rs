@@ -127,7 +127,7 @@ impl SyntheticSequence {
 /// The names of the synthetic presets.
 #[pyfunction]
 pub fn synth_presets() -> Vec<&'static str> {
-    dynapix::synthetic::preset_names()
+    dynapix::synthetic::SynthOptions::preset_names()
 }
 
 /// Inserts ``objects`` flying virtual movers into the real sequence ``seq_dir`` (it needs

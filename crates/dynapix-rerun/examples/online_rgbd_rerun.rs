@@ -13,7 +13,7 @@
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use dynapix::{CameraChoice, Config, FrameResult, Input, NoProgress, run_online_observed};
+use dynapix::{CameraChoice, Config, FrameResult, Input, run_online};
 use dynapix_rerun::{RerunObserver, RerunParams, Target};
 
 fn usage() -> ExitCode {
@@ -34,11 +34,11 @@ fn print(r: &FrameResult) {
 fn run(dir: &str, config: &Config, target: &Target) -> Result<(), Box<dyn std::error::Error>> {
     let input = Input::open(dir, &config.sequence, &CameraChoice::Sequence)?;
     let observer = Arc::new(RerunObserver::open(target, dir, RerunParams::default())?);
-    let (run, result) = run_online_observed(
+    let (run, result) = run_online(
         &input,
         config,
         None,
-        &NoProgress,
+        &(),
         &mut print,
         Some(observer.clone()),
     );

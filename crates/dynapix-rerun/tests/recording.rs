@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use dynapix::synthetic::{Realism, SynthOptions, SyntheticSequence};
-use dynapix::{CameraChoice, Config, Input, NoProgress, RunObserver, Trajectory};
+use dynapix::{CameraChoice, Config, Input, RunObserver, Trajectory};
 use dynapix::{FrameView, OfflineRunner, PassInfo, PassOutput, RunOptions};
 use dynapix_rerun::read::read_rrd;
 use dynapix_rerun::{RerunObserver, RerunParams, Target};
@@ -75,7 +75,7 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
 
     let plain = OfflineRunner::new(&config, &input, RunOptions::default())
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
 
     // The default recording (images in the last pass only) and one with images in every
@@ -95,7 +95,7 @@ fn an_offline_run_decodes_back_with_its_entities_and_counts() {
     let watched = OfflineRunner::new(&config, &input, RunOptions::default())
         .unwrap()
         .with_observer(Arc::new(Both(observer.clone(), all.clone())) as Arc<dyn RunObserver>)
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     observer.finish().unwrap();
     all.finish().unwrap();
@@ -176,18 +176,18 @@ fn an_online_run_decodes_back_and_keeps_its_results() {
     sequence(&seq);
     let config = Config::default();
     let input = Input::open(&seq, &config.sequence, &CameraChoice::Sequence).unwrap();
-    let (plain, r) = dynapix::run_online(&input, &config, None, &NoProgress, &mut |_| {});
+    let (plain, r) = dynapix::run_online(&input, &config, None, &(), &mut |_| {}, None);
     r.unwrap();
 
     let rrd = tmp.path().join("online.rrd");
     let observer = Arc::new(
         RerunObserver::open(&Target::Save(rrd.clone()), "test", RerunParams::default()).unwrap(),
     );
-    let (watched, r) = dynapix::run_online_observed(
+    let (watched, r) = dynapix::run_online(
         &input,
         &config,
         None,
-        &NoProgress,
+        &(),
         &mut |_| {},
         Some(observer.clone()),
     );

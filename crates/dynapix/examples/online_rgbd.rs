@@ -15,7 +15,7 @@
 use std::process::ExitCode;
 
 use dynapix::run_online;
-use dynapix::{CameraChoice, Config, FrameResult, Input, NoProgress};
+use dynapix::{CameraChoice, Config, FrameResult, Input};
 
 fn usage() -> ExitCode {
     eprintln!("usage: online_rgbd SEQ_DIR [--lookahead K] [--config FILE]");
@@ -37,7 +37,7 @@ fn run(dir: &str, config: &Config) -> dynapix::Result<()> {
     let input = Input::open(dir, &config.sequence, &CameraChoice::Sequence)?;
     // The library's online driver: frames read ahead on a reader thread, DynaPix+ masks from
     // the folder's `mask/`, each result printed as soon as it is known.
-    let (run, result) = run_online(&input, config, None, &NoProgress, &mut print);
+    let (run, result) = run_online(&input, config, None, &(), &mut print, None);
     result?;
     let n = input.len().max(1) as f64;
     let sum = |f: fn(&FrameResult) -> f64| run.results.iter().map(f).sum::<f64>();

@@ -17,7 +17,7 @@ use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
 use crate::profile::process_usage;
 pub use crate::profile::{Profile, StageProfiler, StageTime, retain_freed_memory};
 use crate::progress::Progress;
-use crate::stream::{online_masks, run_online_observed};
+use crate::stream::run_online;
 
 /// Per-frame latency of an online bench: milliseconds spent in each `push` (the processing of
 /// the frame it releases: the pushed one, or with a lookahead the one pushed K frames before).
@@ -222,11 +222,40 @@ impl Clock {
     }
 }
 
+/// Runs `config` on `input` once and measures it, stage by stage: `online` pushes every
+/// frame through [`OnlineDynaPix`](crate::OnlineDynaPix) ([`crate::run_online`]: decoding
+/// included, on a reader thread that stays up to two frames ahead; DynaPix+ with the
+/// sequence's `mask/`), else the offline schedule runs from scratch (no cache: nothing is read
+/// from or written to disk but the sequence's frames). The run is shown to `observer` when
+/// given (a viewer's cost is then part of the measured time). `profiler` must be a layer of
+/// the process's `tracing` subscriber for the stage times.
+///
+/// Returns the report and the camera-to-world pose of every tracked frame (online: as
+/// reported when each frame was processed; offline: the final pass).
+pub fn run(
+    config: &Config,
+    input: &Input,
+    online: bool,
+    profiler: &StageProfiler,
+    progress: &dyn Progress,
+    observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
+) -> Result<(BenchReport, dynapix_io::Trajectory)> {
+    if online {
+        return bench_online(config, input, profiler, progress, observer);
+    }
+    let (report, out) = bench_offline(config, input, profiler, progress, observer)?;
+    let trajectory = out
+        .final_pass()
+        .map(|p| p.trajectory.clone())
+        .unwrap_or_default();
+    Ok((report, trajectory))
+}
+
 /// Runs `config` offline on `input` from scratch (no cache: nothing is read from or written
 /// to disk but the sequence's frames) and measures it, shown to `observer` when given (a
 /// viewer's cost is then part of the measured time).
 /// Returns the report and the run's output (for scoring).
-pub fn bench_offline(
+fn bench_offline(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
@@ -261,7 +290,7 @@ pub fn bench_offline(
 /// `config` ([`crate::run_online`]: decoding included, on a reader thread that stays up to two
 /// frames ahead; DynaPix+ with the sequence's `mask/`) and measures it, shown to `observer`
 /// when given. Returns the report and the camera-to-world pose of every tracked frame.
-pub fn bench_online(
+fn bench_online(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
@@ -269,9 +298,9 @@ pub fn bench_online(
     observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
 ) -> Result<(BenchReport, dynapix_io::Trajectory)> {
     // Checked before the clock starts, like the offline runner checks its inputs.
-    online_masks(input, config, None)?;
+    input.mask_folder(config, None)?;
     let clock = Clock::start(profiler);
-    let (run, fed) = run_online_observed(input, config, None, progress, &mut |_| {}, observer);
+    let (run, fed) = run_online(input, config, None, progress, &mut |_| {}, observer);
     if let Err(e) = fed {
         profiler.stop();
         return Err(e);

@@ -4,17 +4,6 @@ use std::path::PathBuf;
 
 pub use crate::pass::BadFrame;
 
-/// A SLAM pass that stopped part-way, with what it had computed.
-#[derive(Debug)]
-pub struct StoppedPass {
-    /// The pass (its progress label, e.g. `first pass (rigidity)`).
-    pub label: String,
-    /// Why it stopped.
-    pub error: Error,
-    /// The pass up to the frame before the one that stopped it.
-    pub partial: crate::pass::PassOutput,
-}
-
 /// Everything that can go wrong in a DynaPix run.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -67,8 +56,15 @@ pub enum Error {
     #[error("{0}")]
     Frame(BadFrame),
     /// A SLAM pass stopped part-way; what it had computed is kept.
-    #[error("{}: {}", .0.label, .0.error)]
-    Stopped(Box<StoppedPass>),
+    #[error("{label}: {error}")]
+    Stopped {
+        /// The pass (its progress label, e.g. `first pass (rigidity)`).
+        label: String,
+        /// Why it stopped.
+        error: Box<Error>,
+        /// The pass up to the frame before the one that stopped it.
+        partial: Box<crate::pass::PassOutput>,
+    },
     /// The first pass of a DynaPix run tracked no frame, so there are no poses for the
     /// motion maps; it carries that pass ([`crate::OfflineRunner::run`] ends the run with it
     /// instead of failing).
@@ -93,7 +89,7 @@ impl Error {
     pub fn bad_frame(&self) -> Option<&BadFrame> {
         match self {
             Error::Frame(b) => Some(b),
-            Error::Stopped(s) => s.error.bad_frame(),
+            Error::Stopped { error, .. } => error.bad_frame(),
             Error::Motion(dynapix_motion::SequenceError::Load { source, .. }) => {
                 source.downcast_ref::<Error>().and_then(Error::bad_frame)
             }
@@ -104,7 +100,7 @@ impl Error {
     /// What a SLAM pass had computed when it stopped (see [`Error::Stopped`]).
     pub fn partial_pass(&self) -> Option<&crate::pass::PassOutput> {
         match self {
-            Error::Stopped(s) => Some(&s.partial),
+            Error::Stopped { partial, .. } => Some(partial),
             _ => None,
         }
     }

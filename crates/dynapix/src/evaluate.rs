@@ -82,7 +82,7 @@ pub fn read_reference_stamps(path: &Path) -> Result<Vec<f64>> {
 /// Evaluates the estimate `est` against the ground truth `gt` (both camera-to-world, sorted
 /// by time); with `reference` frame stamps also the tracking rate. The report is what
 /// `dynapix eval --json` prints (ATE statistics, motionless floor, alignment, RPE, tracking).
-pub fn evaluate_poses(
+pub fn evaluate(
     gt: &[(f64, Se3)],
     est: &[(f64, Se3)],
     reference: Option<&[f64]>,
@@ -97,34 +97,6 @@ pub fn evaluate_poses(
     dynapix_eval::evaluate(gt, est, reference, &options.params())
         .map(|e| e.report())
         .map_err(eval_error)
-}
-
-/// Evaluates a trajectory file against a ground-truth file (camera poses) like
-/// `dynapix eval --gt GT --est EST`; `reference` is a file of frame stamps for the tracking
-/// rate.
-pub fn evaluate_files(
-    gt: &Path,
-    est: &Path,
-    reference: Option<&Path>,
-    options: &EvalOptions,
-) -> Result<EvalReport> {
-    let gt = read_ground_truth(gt)?;
-    let est = read_trajectory(est)?;
-    let reference = reference.map(read_reference_stamps).transpose()?;
-    evaluate_poses(&gt, &est, reference.as_deref(), options)
-}
-
-/// What `dynapix run` writes to `eval.json` for the trajectory file `trajectory` of a run on
-/// a sequence with ground truth `gt` and frame stamps `stamps` (ATE RMSE, pairs, tracking
-/// rate, missing time, motionless floor; an ATE that cannot be computed is recorded in it).
-pub fn evaluate_run_file(gt: &Path, trajectory: &Path, stamps: &[f64]) -> Result<RunEvaluation> {
-    let gt = read_ground_truth(gt)?;
-    Ok(dynapix_eval::files::evaluate_run(
-        &gt,
-        trajectory,
-        Some(stamps),
-        &EvalParams::default(),
-    ))
 }
 
 /// What `dynapix run` writes to `eval.json` for the `trajectory` of a run on `sequence`,
@@ -157,33 +129,6 @@ pub fn score_run(
     )))
 }
 
-/// ATE RMSE and motionless floor (metres) of `trajectory` (taken as it is, all digits)
-/// against the ground truth of `sequence`, with its frame stamps for the tracking rate, as
-/// `dynapix bench` reports them; `None` without ground truth or without a pose.
-pub fn ate_and_floor(sequence: &Sequence, trajectory: &Trajectory) -> Result<Option<(f64, f64)>> {
-    let Some(gt) = &sequence.groundtruth else {
-        return Ok(None);
-    };
-    if trajectory.is_empty() {
-        return Ok(None);
-    }
-    if gt.is_empty() {
-        return Err(eval_error(EvalError::Empty {
-            path: sequence
-                .dir
-                .join(dynapix_io::ground_truth::GROUNDTRUTH_FILE),
-        }));
-    }
-    let ev = dynapix_eval::evaluate(
-        &gt.pairs(),
-        &trajectory.pairs(),
-        Some(&sequence.timestamps()),
-        &EvalParams::default(),
-    )
-    .map_err(eval_error)?;
-    Ok(Some((ev.ate.stats.rmse, ev.motionless_floor())))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -203,12 +148,12 @@ mod tests {
     fn sim3_recovers_a_scaled_estimate_and_se3_does_not() {
         let gt = track(50, 1.0);
         let est = track(50, 0.5);
-        let se3 = evaluate_poses(&gt, &est, None, &EvalOptions::default()).unwrap();
+        let se3 = evaluate(&gt, &est, None, &EvalOptions::default()).unwrap();
         let sim3 = EvalOptions {
             sim3: true,
             ..EvalOptions::default()
         };
-        let sim = evaluate_poses(&gt, &est, None, &sim3).unwrap();
+        let sim = evaluate(&gt, &est, None, &sim3).unwrap();
         assert!(sim.ate_rmse_m < 1e-9, "{}", sim.ate_rmse_m);
         assert!(se3.ate_rmse_m > 0.05, "{}", se3.ate_rmse_m);
         assert!((sim.alignment_scale - 2.0).abs() < 1e-9);
@@ -220,17 +165,17 @@ mod tests {
         let gt = track(50, 1.0);
         let est: Vec<_> = track(50, 1.0).into_iter().take(25).collect();
         let stamps: Vec<f64> = gt.iter().map(|p| p.0).collect();
-        let r = evaluate_poses(&gt, &est, Some(&stamps), &EvalOptions::default()).unwrap();
+        let r = evaluate(&gt, &est, Some(&stamps), &EvalOptions::default()).unwrap();
         let tr = r.tracking_rate.unwrap();
         assert!(tr > 0.4 && tr < 0.6, "{tr}");
-        let none = evaluate_poses(&gt, &[], None, &EvalOptions::default());
+        let none = evaluate(&gt, &[], None, &EvalOptions::default());
         assert!(matches!(none, Err(Error::Input(_))), "{none:?}");
         let bad = EvalOptions {
             max_diff: -1.0,
             ..EvalOptions::default()
         };
         assert!(matches!(
-            evaluate_poses(&gt, &est, None, &bad),
+            evaluate(&gt, &est, None, &bad),
             Err(Error::Config { .. })
         ));
         let missing = read_trajectory(Path::new("/nonexistent/dynapix/traj.txt"));

@@ -101,9 +101,9 @@ pub use dynapix_io::{
 };
 /// The per-map-point probability update rule of the SLAM weighting (EMA, max, latest).
 pub use dynapix_slam::weighting::ProbUpdate;
-pub use error::{BadFrame, Error, Result, StoppedPass};
+pub use error::{BadFrame, Error, Result};
 pub use input::{Camera, CameraChoice, CameraPreset, CameraSource, Input};
-pub use method::{Method, Mode, Terms};
+pub use method::{Method, Mode};
 pub use motion_tool::{MotionOptions, MotionOutput, motion_maps};
 pub use observe::{
     FrameView, KeypointUse, KeypointView, MapPointView, PassInfo, RunObserver, StageTimes,
@@ -111,7 +111,7 @@ pub use observe::{
 pub use offline::{FirstPassResult, OfflineOutput, OfflineRunner, RunOptions};
 pub use online::{FrameResult, OnlineDynaPix, RgbdFrame};
 pub use pass::{FrameTiming, PassOutput, PassStats};
-pub use progress::{NoProgress, Progress, ProgressEvent};
+pub use progress::{Progress, ProgressEvent};
 pub use record::{
     CameraRecord, FileFingerprint, GroundTruthRecord, MapsStatus, MotionRecord, OrbRecord,
     PassRecord, RunRecord, SequenceRecord, SlamRecord, WeightingRecord,
@@ -119,4 +119,4 @@ pub use record::{
 pub use slam::MapFileStats;
 pub use slam_tool::SlamPass;
 pub use store::MapSet;
-pub use stream::{OnlineRun, online_masks, run_online, run_online_observed};
+pub use stream::{OnlineRun, run_online};

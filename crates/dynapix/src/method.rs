@@ -38,7 +38,7 @@ pub enum Method {
 /// Which terms a method's motion maps use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum Terms {
+pub(crate) enum Terms {
     /// P = D·M.
     Full,
     /// P = M (no movable term).
@@ -70,8 +70,18 @@ impl Method {
         }
     }
 
+    /// The motion terms of the method's maps: methods with the same terms share their maps
+    /// (`full`, `no-movable` or `no-moving`); `None` for ORB-SLAM2 (no maps).
+    pub fn map_terms(self) -> Option<&'static str> {
+        self.terms().map(|t| match t {
+            Terms::Full => "full",
+            Terms::NoMovable => "no-movable",
+            Terms::NoMoving => "no-moving",
+        })
+    }
+
     /// The motion terms of the method's maps; `None` for ORB-SLAM2 (no maps).
-    pub fn terms(self) -> Option<Terms> {
+    pub(crate) fn terms(self) -> Option<Terms> {
         match self {
             Method::Orbslam2 => None,
             Method::NoMovable => Some(Terms::NoMovable),

@@ -32,11 +32,8 @@ pub trait Progress: Sync {
     fn event(&self, event: ProgressEvent<'_>);
 }
 
-/// Ignores every event.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct NoProgress;
-
-impl Progress for NoProgress {
+/// `()` ignores every event: pass `&()` for no progress reports.
+impl Progress for () {
     fn event(&self, _: ProgressEvent<'_>) {}
 }
 

@@ -20,7 +20,7 @@ use dynapix_slam::{FeatureStage, Features};
 use image::{GrayImage, RgbImage};
 
 use crate::config::VocabularyChoice;
-use crate::error::{BadFrame, Error, Result, StoppedPass};
+use crate::error::{BadFrame, Error, Result};
 use crate::input::{Camera, Input};
 use crate::observe::{FrameView, PassInfo, RunObserver, StageTimes};
 pub use crate::pass::{FrameTiming, PassOutput, PassStats};
@@ -552,17 +552,17 @@ pub fn run_pass_observed(
             session.finish();
             Ok(session.output())
         }
-        Err(error) => Err(Error::Stopped(Box::new(StoppedPass {
+        Err(error) => Err(Error::Stopped {
             label: label.to_string(),
-            error,
-            partial: session.output(),
-        }))),
+            error: Box::new(error),
+            partial: Box::new(session.output()),
+        }),
     };
     if let (Some(w), Some(info)) = (watch, &info) {
         session.system_mut().record_removed_points(false);
         match &out {
             Ok(o) => w.observer.pass_ends(info, o),
-            Err(Error::Stopped(s)) => w.observer.pass_ends(info, &s.partial),
+            Err(Error::Stopped { partial, .. }) => w.observer.pass_ends(info, partial),
             Err(_) => {}
         }
     }

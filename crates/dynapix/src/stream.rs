@@ -93,25 +93,23 @@ impl OnlineRun {
     }
 }
 
-/// The DynaPix+ mask folder of an online run of `config` on `input`: `masks`, else
-/// `<sequence>/mask`; `None` when the method uses no masks. A folder that does not exist is
-/// an error naming it.
-pub fn online_masks(
-    input: &Input,
-    config: &Config,
-    masks: Option<&Path>,
-) -> Result<Option<PathBuf>> {
-    if !config.method.needs_masks() {
-        return Ok(None);
+impl Input {
+    /// The DynaPix+ mask folder of an online run of `config` on this input: `masks`, else
+    /// `<sequence>/mask`; `None` when the method uses no masks. A folder that does not exist
+    /// is an error naming it.
+    pub fn mask_folder(&self, config: &Config, masks: Option<&Path>) -> Result<Option<PathBuf>> {
+        if !config.method.needs_masks() {
+            return Ok(None);
+        }
+        let d = masks.map_or_else(|| self.sequence.dir.join("mask"), Path::to_path_buf);
+        if !d.is_dir() {
+            return Err(Error::Input(format!(
+                "dynapix+ needs semantic masks: {} is not a folder (pass --masks DIR)",
+                d.display()
+            )));
+        }
+        Ok(Some(d))
     }
-    let d = masks.map_or_else(|| input.sequence.dir.join("mask"), Path::to_path_buf);
-    if !d.is_dir() {
-        return Err(Error::Input(format!(
-            "dynapix+ needs semantic masks: {} is not a folder (pass --masks DIR)",
-            d.display()
-        )));
-    }
-    Ok(Some(d))
 }
 
 /// Frame `i` of `input` as it arrives, with its mask from `masks` (named like the rgb image).
@@ -138,9 +136,11 @@ fn load_frame(input: &Input, i: usize, masks: Option<&Path>) -> Result<RgbdFrame
 /// Pushes every frame of `input` through a new [`OnlineDynaPix`] of `config`, reading them
 /// on a reader thread up to `FRAMES_AHEAD` (2) frames ahead; a frame already read is shown to
 /// the push before it ([`OnlineDynaPix::push_before`], the same results). DynaPix+ reads its
-/// masks from `masks` ([`online_masks`]). A frame whose files cannot be used is skipped
+/// masks from `masks` ([`Input::mask_folder`]). A frame whose files cannot be used is skipped
 /// (listed in [`OnlineRun::skipped`]) when `input` skips bad frames, else it stops the run.
-/// `each` gets every frame's result as soon as it is known.
+/// `each` gets every frame's result as soon as it is known. An `observer` is shown the run's
+/// start ([`RunObserver::pass_begins`], pass 1), every frame and its end
+/// ([`RunObserver::online_ends`]); the results are the same with and without one.
 ///
 /// Returns what was produced and, when the run stopped part-way, why (what was produced is
 /// then up to the frame before).
@@ -150,22 +150,10 @@ pub fn run_online(
     masks: Option<&Path>,
     progress: &dyn Progress,
     each: &mut dyn FnMut(&FrameResult),
-) -> (OnlineRun, Result<()>) {
-    run_online_observed(input, config, masks, progress, each, None)
-}
-
-/// [`run_online`] shown to `observer`: the run's start ([`RunObserver::pass_begins`], pass 1),
-/// every frame and its end ([`RunObserver::online_ends`]). The results are the same.
-pub fn run_online_observed(
-    input: &Input,
-    config: &Config,
-    masks: Option<&Path>,
-    progress: &dyn Progress,
-    each: &mut dyn FnMut(&FrameResult),
     observer: Option<Arc<dyn RunObserver>>,
 ) -> (OnlineRun, Result<()>) {
     let mut run = OnlineRun::default();
-    let masks = match online_masks(input, config, masks) {
+    let masks = match input.mask_folder(config, masks) {
         Ok(m) => m,
         Err(e) => return (run, Err(e)),
     };

@@ -43,7 +43,7 @@ impl Realism {
 /// What defines a synthetic sequence (the `dynapix synth` flags).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SynthOptions {
-    /// Preset name (`static`, `walking_xyz`, …; see [`preset_names`]).
+    /// Preset name (`static`, `walking_xyz`, …; see [`SynthOptions::preset_names`]).
     pub preset: String,
     /// Number of frames (30 Hz).
     pub frames: usize,
@@ -70,9 +70,11 @@ impl Default for SynthOptions {
     }
 }
 
-/// The names of the presets.
-pub fn preset_names() -> Vec<&'static str> {
-    Preset::ALL.iter().map(|p| p.name()).collect()
+impl SynthOptions {
+    /// The names of the presets (the values of [`SynthOptions::preset`]).
+    pub fn preset_names() -> Vec<&'static str> {
+        Preset::ALL.iter().map(|p| p.name()).collect()
+    }
 }
 
 /// The library error of a generator error.

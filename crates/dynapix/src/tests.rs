@@ -10,7 +10,7 @@ use dynapix_synth::{Preset, SceneParams, SynthParams};
 use crate::cues::{GeometricInput, RigidityJob};
 use crate::poses::{FramePoses, PoseOrigin};
 use crate::store::{CacheCheck, MapFolder};
-use crate::{CameraChoice, Config, FlowPreset, Input, NoProgress, OfflineRunner, RunOptions};
+use crate::{CameraChoice, Config, FlowPreset, Input, OfflineRunner, RunOptions};
 
 const FRAMES: usize = 120;
 
@@ -86,7 +86,7 @@ fn offline(config: &Config, input: &Input, cache: &Path) -> crate::OfflineOutput
     };
     OfflineRunner::new(config, input, options)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap()
 }
 
@@ -147,7 +147,7 @@ fn shared_rigidity_pairs_give_every_frame_the_map_it_gets_alone() {
     );
     let maps = std::sync::Mutex::new(std::collections::BTreeMap::new());
     let stats = shared
-        .run(&NoProgress, "rigidity", |i, p| {
+        .run(&(), "rigidity", |i, p| {
             maps.lock().unwrap().insert(i, p);
             Ok(())
         })

@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynapix::{CameraChoice, Config, Input, Method, NoProgress, Trajectory};
+use dynapix::{CameraChoice, Config, Input, Method, Trajectory};
 use dynapix::{OfflineRunner, RunOptions};
 
 fn window() -> Option<PathBuf> {
@@ -51,7 +51,7 @@ fn dynapix_on_the_bonn_window_is_far_below_the_floor_and_orbslam2() {
         let input = Input::open(&seq, &config.sequence, &CameraChoice::Sequence).unwrap();
         OfflineRunner::new(config, &input, options.clone())
             .unwrap()
-            .run(&NoProgress)
+            .run(&())
             .unwrap()
     };
     let orb = run(&Config::default().with_method(Method::Orbslam2));

@@ -1,7 +1,7 @@
 //! `dynapix run` scores its trajectories from memory (`dynapix::evaluate::score_run`) against
 //! the ground truth read once with the sequence: on the real sequences of `../shared/data`
 //! (Bonn window: marker poses converted; TUM fr1_xyz: camera poses) the figures must be those
-//! of the file evaluation of earlier versions (`evaluate_run_file`: write `trajectory.txt`,
+//! of the file evaluation of earlier versions (`dynapix_eval::files::evaluate_run`: write `trajectory.txt`,
 //! read it and `groundtruth.txt` back), to the last digit. Skips (with the reason) when the
 //! data is missing.
 
@@ -58,12 +58,13 @@ fn check(rel: &str) {
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("trajectory.txt");
     est.write_tum(&file).unwrap();
-    let from_files = dynapix::evaluate::evaluate_run_file(
-        &dir.join("groundtruth.txt"),
+    let gt = dynapix_eval::files::read_camera_ground_truth(&dir.join("groundtruth.txt")).unwrap();
+    let from_files = dynapix_eval::files::evaluate_run(
+        &gt,
         &file,
-        &input.timestamps(),
-    )
-    .unwrap();
+        Some(&input.timestamps()),
+        &dynapix_eval::EvalParams::default(),
+    );
     let score = dynapix::evaluate::score_run(&input.sequence, &est, &file)
         .unwrap()
         .expect("the sequence has ground truth");

@@ -6,9 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynapix::{
-    CameraChoice, Config, Input, Method, NoProgress, OfflineRunner, RunOptions, Trajectory,
-};
+use dynapix::{CameraChoice, Config, Input, Method, OfflineRunner, RunOptions, Trajectory};
 use dynapix_synth::{Preset, SceneParams, SynthParams};
 
 /// Frames of the test sequence (30 Hz): the whole preset. Cut to 150 frames the scene is not
@@ -65,7 +63,7 @@ fn run(config: &Config, seq: &Path, cache: &Path) -> (f64, usize) {
     };
     let out = OfflineRunner::new(config, &input, options)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     let last = out.final_pass().unwrap();
     (ate(seq, &last.trajectory), last.stats.tracked)

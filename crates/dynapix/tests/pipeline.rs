@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use dynapix::{
-    CameraChoice, Config, FlowPreset, Input, Method, NoProgress, OnlineDynaPix, PoseSource,
-    RgbdFrame, Trajectory,
+    CameraChoice, Config, FlowPreset, Input, Method, OnlineDynaPix, PoseSource, RgbdFrame,
+    Trajectory,
 };
 use dynapix::{OfflineRunner, RunOptions};
 use dynapix_synth::{Preset, SceneParams, SynthParams};
@@ -76,7 +76,7 @@ fn offline(config: &Config, input: &Input, cache: &Path) -> dynapix::OfflineOutp
     };
     OfflineRunner::new(config, input, options)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap()
 }
 
@@ -357,9 +357,9 @@ fn an_offline_run_keeps_no_frame_data_in_memory() {
         ..Default::default()
     };
     let runner = OfflineRunner::new(&config, &input, options).unwrap();
-    let out = runner.run(&NoProgress).unwrap();
+    let out = runner.run(&()).unwrap();
     let map_bytes = 320 * 240 * 2;
-    let rigidity = runner.rigidity_maps(&NoProgress).unwrap().unwrap();
+    let rigidity = runner.rigidity_maps(&()).unwrap().unwrap();
     let last = out.maps.last().unwrap();
     for (k, m) in out.maps.iter().chain([&rigidity]).enumerate() {
         // Far below one frame's map for the whole sequence.
@@ -396,7 +396,7 @@ fn an_offline_run_keeps_no_frame_data_in_memory() {
         ..Default::default()
     };
     let runner = OfflineRunner::new(&full, &kept, options).unwrap();
-    let again = runner.run(&NoProgress).unwrap();
+    let again = runner.run(&()).unwrap();
     assert!(runner.input().decoded_peak_bytes() > FRAMES * 320 * 240 * 3);
     assert_eq!(
         out.final_pass().unwrap().trajectory,
@@ -512,7 +512,7 @@ fn a_run_without_a_cache_writes_nothing_and_tracks_like_a_cached_run() {
     };
     let runner = OfflineRunner::new(&config, &input, options).unwrap();
     assert_eq!(runner.cache_dir(), None);
-    let none = runner.run(&NoProgress);
+    let none = runner.run(&());
     let after = tree(&seq);
     set_read_only(&seq, false);
     let none = none.unwrap();
@@ -829,13 +829,8 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     // `dynapix motion --poses gt` writes SEQ/prob with its record.
     let mut gt_config = config.clone();
     gt_config.motion.poses = PoseSource::GroundTruth;
-    let made = dynapix::motion_maps(
-        &input,
-        &gt_config,
-        &dynapix::MotionOptions::default(),
-        &NoProgress,
-    )
-    .unwrap();
+    let made =
+        dynapix::motion_maps(&input, &gt_config, &dynapix::MotionOptions::default(), &()).unwrap();
     assert_eq!(made.dir, seq.join("prob"));
     assert_eq!(made.frames_computed, 20);
     assert_eq!(made.poses.len(), 20);
@@ -848,13 +843,8 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     assert_eq!(rec.results["frames_computed"], 20);
     assert_eq!(rec.results["frames_skipped"], 0);
     // Called again, every map is kept.
-    let again = dynapix::motion_maps(
-        &input,
-        &gt_config,
-        &dynapix::MotionOptions::default(),
-        &NoProgress,
-    )
-    .unwrap();
+    let again =
+        dynapix::motion_maps(&input, &gt_config, &dynapix::MotionOptions::default(), &()).unwrap();
     assert_eq!((again.frames_computed, again.frames_skipped), (0, 20));
     // A run with its own poses uses the sequence's maps and says that ground truth made them.
     let input = open(&seq, &config);
@@ -864,7 +854,7 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     };
     let out = OfflineRunner::new(&config, &input, options.clone())
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     assert_eq!(json(&out.record)["prob"]["source"], "sequence prob/ folder");
     assert_eq!(json(&out.record)["prob"]["poses"], "ground truth");
@@ -878,7 +868,7 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     let input = open(&seq, &config);
     let out = OfflineRunner::new(&config, &input, options.clone())
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     assert!(json(&out.record)["ground_truth_used_at_run_time"].is_null());
     // Recomputing ignores them and records the own poses.
@@ -888,7 +878,7 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
     };
     let out = OfflineRunner::new(&config, &input, recompute)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     assert_eq!(json(&out.record)["ground_truth_used_at_run_time"], false);
     assert_eq!(json(&out.record)["prob"]["source"], "computed");
@@ -905,7 +895,7 @@ fn maps_made_with_ground_truth_poses_are_reported_as_such() {
         },
     )
     .unwrap()
-    .run(&NoProgress)
+    .run(&())
     .unwrap();
     assert_eq!(json(&out.record)["ground_truth_used_at_run_time"], true);
     assert_eq!(json(&out.record)["oracle_poses"], true);
@@ -929,7 +919,7 @@ fn a_bad_frame_stops_the_run_or_is_skipped() {
     };
     let e = OfflineRunner::new(&config, &input, options.clone())
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap_err();
     let bad = e.bad_frame().expect("the error names the frame");
     assert_eq!(bad.index, 5);
@@ -953,7 +943,7 @@ fn a_bad_frame_stops_the_run_or_is_skipped() {
     assert_eq!(found, vec![5]);
     let out = OfflineRunner::new(&config, &input, options)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     let pass = out.final_pass().unwrap();
     assert_eq!(pass.skipped.len(), 1);
@@ -973,7 +963,7 @@ fn a_slam_pass_saves_a_map_that_localises_and_its_record_round_trips() {
     config.sequence.max_frames = Some(40);
     let input = open(sequence(), &config);
     let mut slam = dynapix::SlamPass::new(&input, &config).unwrap();
-    let pass = slam.run(&input, &NoProgress, None).unwrap();
+    let pass = slam.run(&input, &(), None).unwrap();
     assert_eq!(pass.stats.frames, 40);
     assert!(pass.stats.tracked > 30, "{:?}", pass.stats);
     let out = tmp.path().join("out");
@@ -997,7 +987,7 @@ fn a_slam_pass_saves_a_map_that_localises_and_its_record_round_trips() {
         (loaded.keyframes, loaded.points),
         (saved.keyframes, saved.points)
     );
-    let local = again.run(&input, &NoProgress, None).unwrap();
+    let local = again.run(&input, &(), None).unwrap();
     assert_eq!(local.stats.keyframes, saved.keyframes);
     assert!(local.stats.tracked > 30, "{:?}", local.stats);
 

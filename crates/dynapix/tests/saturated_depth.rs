@@ -9,7 +9,7 @@ mod common;
 use common::{ate, copy_dir};
 use std::path::{Path, PathBuf};
 
-use dynapix::{CameraChoice, Config, Input, NoProgress, OnlineDynaPix, RgbdFrame, Trajectory};
+use dynapix::{CameraChoice, Config, Input, OnlineDynaPix, RgbdFrame, Trajectory};
 use dynapix::{OfflineRunner, RunOptions};
 use dynapix_io::FrameStatus;
 use dynapix_synth::{Preset, SceneParams, SynthParams};
@@ -62,7 +62,7 @@ fn offline(seq: &Path, config: &Config) -> (f64, f64, usize) {
     };
     let out = OfflineRunner::new(config, &input, options)
         .unwrap()
-        .run(&NoProgress)
+        .run(&())
         .unwrap();
     let last = out.final_pass().unwrap();
     let tracked = last

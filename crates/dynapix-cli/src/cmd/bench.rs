@@ -3,7 +3,7 @@
 //! wall time and peak memory (`dynapix::bench`), plus the ATE when ground truth exists.
 //! Stage figures are busy time summed over worker threads; phases are wall time.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use dynapix::bench::StageProfiler;
 
@@ -73,24 +73,22 @@ pub fn run(args: Args, bars: &Bars, profiler: &StageProfiler) -> anyhow::Result<
     for _ in 0..args.repeat {
         let viz = args.viz.open(&name)?;
         let observer = viz.as_ref().map(super::viz::Viz::observer);
-        runs.push(if args.online {
-            dynapix::bench::bench_online(&config, &input, profiler, bars, observer)?
-        } else {
-            let (r, out) =
-                dynapix::bench::bench_offline(&config, &input, profiler, bars, observer)?;
-            let t = out
-                .final_pass()
-                .map(|p| p.trajectory.clone())
-                .unwrap_or_default();
-            (r, t)
-        });
+        runs.push(dynapix::bench::run(
+            &config,
+            &input,
+            args.online,
+            profiler,
+            bars,
+            observer,
+        )?);
         if let Some(v) = viz {
             v.finish()?;
         }
     }
     let walls: Vec<f64> = runs.iter().map(|(r, _)| r.wall_seconds).collect();
     let (mut report, trajectory) = runs.swap_remove(median_index(&walls));
-    let ate = dynapix::evaluate::ate_and_floor(&input.sequence, &trajectory)?;
+    let score = dynapix::evaluate::score_run(&input.sequence, &trajectory, Path::new("bench"))?;
+    let ate = score.and_then(|s| Some((s.run.result.ate_rmse_m?, s.run.motionless_floor_m?)));
     report.ate_rmse_m = ate.map(|a| a.0);
     report.motionless_floor_m = ate.map(|a| a.1);
     report.repeat_wall_seconds = walls.clone();

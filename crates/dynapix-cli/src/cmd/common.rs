@@ -260,7 +260,7 @@ fn error_paths(e: &anyhow::Error) -> Vec<PathBuf> {
         match e {
             dynapix::Error::Io(io) => out.push(io.path().to_path_buf()),
             dynapix::Error::File { path, .. } => out.push(path.clone()),
-            dynapix::Error::Stopped(s) => of(&s.error, out),
+            dynapix::Error::Stopped { error, .. } => of(error, out),
             _ => {}
         }
     }

@@ -123,12 +123,12 @@ pub fn run(args: Args, bars: &Bars) -> anyhow::Result<()> {
     for (input, name) in inputs.iter().zip(&names) {
         let mut seen = Vec::new();
         for &m in &args.methods {
-            let Some(terms) = m.terms() else { continue };
+            let Some(terms) = m.map_terms() else { continue };
             if seen.contains(&terms) {
                 continue;
             }
             seen.push(terms);
-            eprintln!("{name}: motion maps ({terms:?})");
+            eprintln!("{name}: motion maps ({terms})");
             let config = base.clone().with_method(m);
             OfflineRunner::new(&config, input, options(input, name))?.prepare(bars)?;
         }

@@ -471,7 +471,7 @@ pub fn execute_online(
     check_out(out, &[("the sequence", input.sequence.dir.as_path())])?;
     // DynaPix+ masks (`--masks`, else the sequence's `mask/`), checked before anything is
     // written.
-    let masks = dynapix::online_masks(input, config, masks)?;
+    let masks = input.mask_folder(config, masks)?;
     let masks = masks.as_deref();
     let staged = OutputFolder::begin(out, RESULT_MARKERS)?;
     let mut record = RunRecord::online(input, config, masks);
@@ -523,8 +523,7 @@ fn online_into(
     bars: &Bars,
     observer: Option<std::sync::Arc<dyn dynapix::RunObserver>>,
 ) -> anyhow::Result<RunOutcome> {
-    let (run, result) =
-        dynapix::run_online_observed(input, config, masks, bars, &mut |_| {}, observer);
+    let (run, result) = dynapix::run_online(input, config, masks, bars, &mut |_| {}, observer);
     if let Err(e) = result {
         // Keep what was reported up to the frame that stopped the run.
         write_online_poses(dir, &run)?;

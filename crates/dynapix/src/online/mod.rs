@@ -311,7 +311,7 @@ impl OnlineDynaPix {
     }
 
     /// Shows every processed frame to `observer` ([`RunObserver::frame`]; the caller reports
-    /// the run's start and end, as [`crate::stream::run_online_observed`] does). The results
+    /// the run's start and end, as [`crate::run_online`] does). The results
     /// are the same as without it.
     pub fn set_observer(&mut self, observer: Arc<dyn RunObserver>) {
         self.system.record_removed_points(true);
