@@ -405,9 +405,9 @@ pub fn run(
             passes: out.passes.iter().map(|p| json!(p.stats)).collect(),
             first_pass: out.first_pass.as_ref().map(|f| f.trajectory.clone()),
             record,
-            maps_dir: maps.and_then(|m| m.folder.as_ref().map(|f| f.dir.clone())),
+            maps_dir: maps.and_then(|m| m.dir().map(Path::to_path_buf)),
             map_paths: (0..input.len())
-                .map(|i| maps.and_then(|m| m.folder.as_ref()?.map_path(&input, i)))
+                .map(|i| maps.and_then(|m| m.map_path(&input, i)))
                 .collect(),
             frame_stamps: input.timestamps(),
             groundtruth: Some(input.sequence.dir.join("groundtruth.txt")).filter(|p| p.is_file()),

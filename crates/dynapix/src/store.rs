@@ -238,10 +238,10 @@ pub fn stored_map(p: &MotionProbability, i: usize) -> Result<Gray16Image> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct MapSet {
     /// The folder of the maps, when they are on disk.
-    pub folder: Option<MapFolder>,
+    pub(crate) folder: Option<MapFolder>,
     /// The maps in a temporary file, when this run computed them without a cache folder
     /// (`None` too once the run released them, see [`MapSet::release`]).
-    pub spilled: Option<SpilledMaps>,
+    pub(crate) spilled: Option<SpilledMaps>,
     /// Provenance (written into `run.json`).
     pub record: Value,
     /// Whether ground-truth poses made the maps (`None`: unknown, e.g. external maps without
@@ -283,6 +283,17 @@ impl MapSet {
     /// The folder of the maps, when they are on disk.
     pub fn dir(&self) -> Option<&Path> {
         self.folder.as_ref().map(|f| f.dir.as_path())
+    }
+
+    /// The file of frame `i`'s map in the folder, when the maps are in a folder.
+    pub fn map_path(&self, input: &Input, i: usize) -> Option<PathBuf> {
+        self.folder.as_ref()?.map_path(input, i)
+    }
+
+    /// Bytes of the temporary file that holds the maps of a run without a cache folder (0
+    /// when the maps are in a folder, or once released, [`MapSet::release`]).
+    pub fn bytes_on_disk(&self) -> u64 {
+        self.spilled.as_ref().map_or(0, SpilledMaps::bytes_on_disk)
     }
 
     /// The stored 16-bit map of frame `i` of `input`: from the temporary file when this run
@@ -329,7 +340,7 @@ impl MapSet {
     }
 
     /// The error of a frame without a map.
-    pub fn missing(&self, input: &Input, i: usize) -> Error {
+    pub(crate) fn missing(&self, input: &Input, i: usize) -> Error {
         match self.folder.as_ref().and_then(|f| f.map_path(input, i)) {
             Some(p) => Error::file(p, "no such map (motion map missing)"),
             None => Error::Input(format!("frame {i} has no motion map")),
