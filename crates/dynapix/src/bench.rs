@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::input::Input;
-use crate::offline::{OfflineOutput, OfflineRunner, RunOptions};
+use crate::offline::{OfflineRunner, RunOptions};
 use crate::profile::process_usage;
 pub use crate::profile::{Profile, StageProfiler, StageTime, retain_freed_memory};
 use crate::progress::Progress;
@@ -241,27 +241,23 @@ pub fn run(
     observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
 ) -> Result<(BenchReport, dynapix_io::Trajectory)> {
     if online {
-        return bench_online(config, input, profiler, progress, observer);
+        bench_online(config, input, profiler, progress, observer)
+    } else {
+        bench_offline(config, input, profiler, progress, observer)
     }
-    let (report, out) = bench_offline(config, input, profiler, progress, observer)?;
-    let trajectory = out
-        .final_pass()
-        .map(|p| p.trajectory.clone())
-        .unwrap_or_default();
-    Ok((report, trajectory))
 }
 
 /// Runs `config` offline on `input` from scratch (no cache: nothing is read from or written
 /// to disk but the sequence's frames) and measures it, shown to `observer` when given (a
 /// viewer's cost is then part of the measured time).
-/// Returns the report and the run's output (for scoring).
+/// Returns the report and the final pass's trajectory.
 fn bench_offline(
     config: &Config,
     input: &Input,
     profiler: &StageProfiler,
     progress: &dyn Progress,
     observer: Option<std::sync::Arc<dyn crate::RunObserver>>,
-) -> Result<(BenchReport, OfflineOutput)> {
+) -> Result<(BenchReport, dynapix_io::Trajectory)> {
     // No cache: everything is computed and kept in memory, nothing is written or read back.
     let mut runner = OfflineRunner::new(
         config,
@@ -283,7 +279,11 @@ fn bench_offline(
         .and_then(|o| o.final_pass())
         .map_or(0, |p| p.stats.tracked);
     let report = clock.report(profiler, input, config, "offline", tracked, None);
-    Ok((report, out?))
+    let trajectory = out?
+        .final_pass()
+        .map(|p| p.trajectory.clone())
+        .unwrap_or_default();
+    Ok((report, trajectory))
 }
 
 /// Pushes every frame of `input` through [`OnlineDynaPix`](crate::OnlineDynaPix) with
